@@ -1,0 +1,245 @@
+"""What every application shares: command line, properties, network, databus, run loop and clean shutdown.
+
+An application is a function that receives an :class:`Application`, reads its properties, creates its endpoints
+and runs its loop::
+
+    def vision(app: Application) -> None:
+        writer = app.writer("Vision", VisionSensor, default_topic="VisionTopic")
+        for _ in app.periodic(app.props.get_int("config.pubInterval", 1000) / 1000):
+            writer.write(...)
+
+    def main(argv: list[str] | None = None) -> int:
+        return run("vision", "Publishes vision sensor objects.", vision, argv)
+
+Common flags: ``--properties FILE``, ``-D key=value`` (repeatable), ``--count N`` (stop after N iterations, 0 = run
+forever), ``--domain``, ``--network``, ``--interface``, ``--peers``. Ctrl-C and SIGTERM end the loop; the entities are
+deleted and the exit code is 0. Bad input ends with one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from types import FrameType
+from typing import Any, TypeVar
+
+from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.pub import DataWriter
+from cyclonedds.sub import DataReader
+
+from automotive.endpoints import Databus
+from automotive.errors import ConfigError
+from automotive.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, user_uri
+from automotive.properties import Properties
+from automotive.qos import QosProfiles
+from automotive.status import EventHook
+
+T = TypeVar("T")
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+PROPERTIES_DIR = PROJECT_ROOT / "properties"
+DEFAULT_QOS_FILE = PROJECT_ROOT / "qos" / "automotive_qos.xml"
+DEFAULT_LIBRARY = "AutomotiveLibrary"
+EXIT_BAD_INPUT = 2
+
+ArgumentAdder = Callable[[argparse.ArgumentParser], None]
+
+
+def default_properties_path(name: str) -> Path:
+    return PROPERTIES_DIR / f"{name}.properties"
+
+
+def build_parser(name: str, description: str, add_arguments: ArgumentAdder | None = None) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=name, description=description)
+    parser.add_argument("--properties", type=Path, default=None,
+                        help=f"properties file (default: properties/{name}.properties)")
+    parser.add_argument("-D", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a property (repeatable)")
+    parser.add_argument("--count", type=int, default=0, help="stop after N iterations (0: run until stopped)")
+    parser.add_argument("--domain", type=int, default=None, help="DDS domain id (overrides config.domainId)")
+    parser.add_argument("--network", choices=["loopback", "lan", "peers"], default=None,
+                        help="single host on loopback (default), multicast LAN, or unicast peers")
+    parser.add_argument("--interface", default=None, help="network interface name or address (config.interface)")
+    parser.add_argument("--peers", default=None, help="comma-separated unicast peers, multicast off (config.peers)")
+    if add_arguments is not None:
+        add_arguments(parser)
+    return parser
+
+
+class Application:
+    """The running application: its arguments, properties, databus and stop signal."""
+
+    def __init__(self, name: str, args: argparse.Namespace, props: Properties, log: logging.Logger):
+        self.name = name
+        self.args = args
+        self.props = props
+        self.log = log
+        self.stop_event = threading.Event()
+        if args.count < 0:
+            raise ConfigError(f"--count {args.count}: expected 0 (forever) or a positive number")
+        self.count: int = args.count
+        if args.domain is not None:
+            props.override([f"config.domainId={args.domain}"], "--domain")
+        for flag, key in (("network", "config.network"), ("interface", "config.interface"), ("peers", "config.peers")):
+            value = getattr(args, flag)
+            if value is not None:
+                props.override([f"{key}={value}"], f"--{flag}")
+        self.domain_id = props.get_int("config.domainId", 0, minimum=0, maximum=232)
+        self.library = props.get_str("qos.Library", DEFAULT_LIBRARY)
+        self.profiles = QosProfiles(props.get_path("qos.File", str(DEFAULT_QOS_FILE)))
+        self.network = self._network_config()
+        if self.network is None:
+            log.info("network: CYCLONEDDS_URI from the environment")
+        else:
+            log.info("network: %s", self.network.describe())
+        self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, name)
+        self.guard = GuardCondition(self.bus.participant)
+        self._ready = False
+
+    def _network_config(self) -> NetworkConfig | None:
+        explicit = any(key in self.props for key in ("config.network", "config.interface", "config.peers"))
+        network = self.props.get_str("config.network", "")
+        interface = self.props.get_str("config.interface", "")
+        peers = self.props.get_list("config.peers", [])
+        max_participants = self.props.get_int("config.maxParticipants", DEFAULT_MAX_PARTICIPANTS, minimum=1)
+        if user_uri() is not None and not explicit:
+            return None
+        return NetworkConfig.from_settings(network, interface, peers, max_participants, self.props.source)
+
+    # -- endpoints ---------------------------------------------------------------------------------------------
+    def topic_name(self, role: str, default: str) -> str:
+        return self.props.get_str(f"topic.{role}", default)
+
+    def profile(self, role: str) -> str:
+        return self.props.get_str(f"qos.{role}.Profile", None) or self.props.get_str("qos.Profile", role)
+
+    def writer(self, role: str, data_type: type[T], default_topic: str, hook: EventHook | None = None) -> DataWriter[T]:
+        """A writer of the topic ``topic.<role>`` with the QoS profile ``qos.<role>.Profile`` (or ``qos.Profile``)."""
+        return self.bus.writer(self.topic_name(role, default_topic), data_type, self.profile(role), hook)
+
+    def reader(self, role: str, data_type: type[T], default_topic: str, hook: EventHook | None = None) -> DataReader[T]:
+        return self.bus.reader(self.topic_name(role, default_topic), data_type, self.profile(role), hook)
+
+    # -- run loop ----------------------------------------------------------------------------------------------
+    @property
+    def running(self) -> bool:
+        return not self.stop_event.is_set()
+
+    def stop(self) -> None:
+        self.stop_event.set()
+        self.guard.set(True)
+
+    def ready(self) -> None:
+        """Called once set-up is done: a property the application never read is a mistake worth stopping for."""
+        if self._ready:
+            return
+        unused = self.props.unused_keys()
+        if unused:
+            where = ", ".join(f"'{key}' ({self.props.where(key)})" for key in unused)
+            raise ConfigError(f"{self.props.source}: unknown key(s) for {self.name}: {where}")
+        self._ready = True
+
+    def periodic(self, interval_s: float) -> Iterator[int]:
+        """Yield iteration numbers 1, 2, ... every ``interval_s`` seconds until stopped or ``--count`` is reached."""
+        self.ready()
+        iteration = 0
+        next_time = time.monotonic()
+        while self.running and (self.count == 0 or iteration < self.count):
+            iteration += 1
+            yield iteration
+            next_time += interval_s
+            delay = next_time - time.monotonic()
+            if delay < 0:  # fell behind (a slow step): restart the schedule rather than burst
+                next_time = time.monotonic()
+                delay = 0
+            if delay > 0 and self.stop_event.wait(delay):
+                break
+
+    def waitset(self, *readers: DataReader[Any]) -> WaitSet:
+        """A WaitSet woken by new samples on any of ``readers`` and by the stop signal."""
+        waitset = WaitSet(self.bus.participant)
+        for reader in readers:
+            waitset.attach(ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any))
+        waitset.attach(self.guard)
+        return waitset
+
+    def wait_iterations(self, waitset: WaitSet, timeout_s: float = 1.0) -> Iterator[int]:
+        """Yield after each wake-up of ``waitset`` (data or timeout), until stopped or ``--count`` iterations."""
+        self.ready()
+        iteration = 0
+        while self.running and (self.count == 0 or iteration < self.count):
+            waitset.wait(int(timeout_s * 1e9))
+            if not self.running:
+                break
+            iteration += 1
+            yield iteration
+
+    def close(self) -> None:
+        self.bus.close()
+
+
+def setup_logging(name: str) -> logging.Logger:
+    # Line-buffered output, so that a launcher or a test reading a pipe sees each line at once.
+    if hasattr(sys.stdout, "reconfigure"):
+        sys.stdout.reconfigure(line_buffering=True)  # type: ignore[union-attr]
+    handler = logging.StreamHandler(sys.stdout)
+    handler.setFormatter(logging.Formatter("%(asctime)s.%(msecs)03d %(name)s: %(message)s", "%H:%M:%S"))
+    log = logging.getLogger(name)
+    log.handlers[:] = [handler]
+    log.setLevel(logging.INFO)
+    log.propagate = False
+    return log
+
+
+def load_properties(name: str, args: argparse.Namespace) -> Properties:
+    path = args.properties or default_properties_path(name)
+    props = Properties.load(path)
+    props.override(args.overrides)
+    return props
+
+
+def run(name: str, description: str, body: Callable[[Application], None], argv: Sequence[str] | None = None,
+        add_arguments: ArgumentAdder | None = None) -> int:
+    """Parse the command line, build the application, run ``body`` and shut down; return the exit code."""
+    args = build_parser(name, description, add_arguments).parse_args(argv)
+    log = setup_logging(name)
+    app: Application | None = None
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        if app is not None:
+            app.stop()
+        else:
+            raise KeyboardInterrupt
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        app = Application(name, args, load_properties(name, args), log)
+        body(app)
+        return 0
+    except ConfigError as error:
+        print(f"{name}: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        return 0
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if app is not None:
+            app.close()
+            log.info("stopped")
+
+
+def main_entry(name: str, description: str, body: Callable[[Application], None],
+               add_arguments: ArgumentAdder | None = None) -> Callable[[], None]:
+    """A console-script entry point for an application."""
+
+    def entry() -> None:
+        sys.exit(run(name, description, body, None, add_arguments))
+
+    return entry

@@ -1,0 +1,87 @@
+"""Participant, topics, publisher/subscriber, writers and readers created from (library, profile) QoS pairs.
+
+This is what the original applications do with create_..._with_profile; every endpoint gets the shared status
+listener, so its DDS events are reported with its topic name.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Any, TypeVar
+
+from cyclonedds.core import DDSException
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.pub import DataWriter, Publisher
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader, Subscriber
+from cyclonedds.topic import Topic
+
+from automotive.errors import ConfigError
+from automotive.network import NetworkConfig, user_uri
+from automotive.qos import QosProfiles
+from automotive.status import EventHook, StatusListener
+
+T = TypeVar("T")
+
+
+class Databus:
+    """One participant of one application, with its endpoints."""
+
+    def __init__(self, domain_id: int, profiles: QosProfiles, library: str, log: logging.Logger,
+                 network: NetworkConfig | None = None, name: str = "automotive"):
+        self.domain_id = domain_id
+        self.profiles = profiles
+        self.library = library
+        self.log = log
+        # A Domain object carries our network configuration; with the user's own CYCLONEDDS_URI we leave it alone.
+        self.domain: Domain | None = None
+        if network is not None:
+            try:
+                self.domain = Domain(domain_id, network.cyclone_xml())
+            except DDSException as error:
+                raise ConfigError(
+                    f"network {network.describe()}: Cyclone refused the configuration ({error})") from None
+        try:
+            self.participant = DomainParticipant(domain_id, qos=Qos(Policy.EntityName(name)))
+        except DDSException as error:
+            hint = f"CYCLONEDDS_URI={user_uri()}" if network is None else network.describe()
+            raise ConfigError(f"cannot join DDS domain {domain_id} ({hint}): {error}") from None
+        self.publisher = Publisher(self.participant)
+        self.subscriber = Subscriber(self.participant)
+        self._topics: dict[str, Topic[Any]] = {}
+        self._listeners: list[StatusListener] = []
+
+    def topic(self, name: str, data_type: type[T]) -> Topic[T]:
+        topic = self._topics.get(name)
+        if topic is None:
+            topic = Topic(self.participant, name, data_type)
+            self._topics[name] = topic
+        elif topic.data_type is not data_type:
+            raise ConfigError(f"topic '{name}' is used with two types: {topic.data_type.__name__} "
+                              f"and {data_type.__name__}")
+        return topic
+
+    def _listener(self, topic_name: str, hook: EventHook | None) -> StatusListener:
+        listener = StatusListener(topic_name, self.log, hook)
+        self._listeners.append(listener)  # Cyclone keeps only a C reference: keep the Python object alive
+        return listener
+
+    def writer(self, topic_name: str, data_type: type[T], profile: str,
+               hook: EventHook | None = None) -> DataWriter[T]:
+        qos = self.profiles.writer_qos(self.library, profile)
+        topic = self.topic(topic_name, data_type)
+        return DataWriter(self.publisher, topic, qos=qos, listener=self._listener(topic_name, hook))
+
+    def reader(self, topic_name: str, data_type: type[T], profile: str,
+               hook: EventHook | None = None) -> DataReader[T]:
+        qos = self.profiles.reader_qos(self.library, profile)
+        topic = self.topic(topic_name, data_type)
+        return DataReader(self.subscriber, topic, qos=qos, listener=self._listener(topic_name, hook))
+
+    def close(self) -> None:
+        """Delete the participant and everything in it (Cyclone deletes children with their parent)."""
+        self.participant.__del__()
+        self._topics.clear()
+        self._listeners.clear()
+        if self.domain is not None:
+            self.domain.__del__()

@@ -1,0 +1,93 @@
+"""One listener that reports every DDS status event of an endpoint as one readable line naming its topic."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from typing import Any
+
+from cyclonedds.core import Listener
+
+# DDS QoS policy ids, as in the DDS specification and Cyclone's dds_public_qosdefs.h.
+QOS_POLICY_NAMES = {
+    1: "USER_DATA", 2: "DURABILITY", 3: "PRESENTATION", 4: "DEADLINE", 5: "LATENCY_BUDGET", 6: "OWNERSHIP",
+    7: "OWNERSHIP_STRENGTH", 8: "LIVELINESS", 9: "TIME_BASED_FILTER", 10: "PARTITION", 11: "RELIABILITY",
+    12: "DESTINATION_ORDER", 13: "HISTORY", 14: "RESOURCE_LIMITS", 15: "ENTITY_FACTORY",
+    16: "WRITER_DATA_LIFECYCLE", 17: "READER_DATA_LIFECYCLE", 18: "TOPIC_DATA", 19: "GROUP_DATA",
+    20: "TRANSPORT_PRIORITY", 21: "LIFESPAN", 22: "DURABILITY_SERVICE", 23: "PROPERTY",
+    24: "TYPE_CONSISTENCY_ENFORCEMENT", 25: "DATA_REPRESENTATION",
+}
+REJECTED_REASONS = {0: "not rejected", 1: "instance limit", 2: "sample limit", 3: "samples-per-instance limit"}
+
+# Called with (event name, topic name, status) after the line is logged, for applications that react to events.
+EventHook = Callable[[str, str, Any], None]
+
+
+def policy_name(policy_id: int) -> str:
+    return QOS_POLICY_NAMES.get(policy_id, f"policy #{policy_id}")
+
+
+class StatusListener(Listener):
+    """Logs matched/unmatched, deadline missed, liveliness, incompatible QoS, sample lost and rejected events."""
+
+    def __init__(self, topic_name: str, log: logging.Logger, hook: EventHook | None = None):
+        super().__init__()
+        self.topic_name = topic_name
+        self.log = log
+        self.hook = hook
+
+    def _report(self, event: str, status: Any, message: str, level: int = logging.INFO) -> None:
+        self.log.log(level, "[%s] %s", self.topic_name, message)
+        if self.hook is not None:
+            self.hook(event, self.topic_name, status)
+
+    def on_publication_matched(self, writer: Any, status: Any) -> None:
+        verb = "matched" if status.current_count_change > 0 else "unmatched"
+        self._report("publication_matched", status,
+                     f"writer {verb} a reader: {status.current_count} reader(s) now")
+
+    def on_subscription_matched(self, reader: Any, status: Any) -> None:
+        verb = "matched" if status.current_count_change > 0 else "unmatched"
+        self._report("subscription_matched", status,
+                     f"reader {verb} a writer: {status.current_count} writer(s) now")
+
+    def on_offered_deadline_missed(self, writer: Any, status: Any) -> None:
+        self._report("offered_deadline_missed", status,
+                     f"offered deadline missed: the writer was late (total {status.total_count})", logging.WARNING)
+
+    def on_requested_deadline_missed(self, reader: Any, status: Any) -> None:
+        self._report("requested_deadline_missed", status,
+                     f"requested deadline missed: no data in time (total {status.total_count})", logging.WARNING)
+
+    def on_liveliness_lost(self, writer: Any, status: Any) -> None:
+        self._report("liveliness_lost", status,
+                     f"liveliness lost: this writer did not assert itself (total {status.total_count})",
+                     logging.WARNING)
+
+    def on_liveliness_changed(self, reader: Any, status: Any) -> None:
+        if status.not_alive_count_change > 0:
+            message, level = "liveliness LOST of a writer", logging.WARNING
+        elif status.alive_count_change > 0:
+            message, level = "liveliness regained: a writer is alive", logging.INFO
+        else:
+            message, level = "liveliness changed", logging.INFO
+        self._report("liveliness_changed", status,
+                     f"{message} ({status.alive_count} alive, {status.not_alive_count} not alive)", level)
+
+    def on_offered_incompatible_qos(self, writer: Any, status: Any) -> None:
+        self._report("offered_incompatible_qos", status,
+                     f"incompatible QoS offered to a reader: {policy_name(status.last_policy_id)}", logging.WARNING)
+
+    def on_requested_incompatible_qos(self, reader: Any, status: Any) -> None:
+        self._report("requested_incompatible_qos", status,
+                     f"incompatible QoS requested from a writer: {policy_name(status.last_policy_id)}",
+                     logging.WARNING)
+
+    def on_sample_lost(self, reader: Any, status: Any) -> None:
+        self._report("sample_lost", status,
+                     f"sample lost: {status.total_count_change} more (total {status.total_count})", logging.WARNING)
+
+    def on_sample_rejected(self, reader: Any, status: Any) -> None:
+        reason = REJECTED_REASONS.get(status.last_reason, str(status.last_reason))
+        self._report("sample_rejected", status,
+                     f"sample rejected ({reason}): total {status.total_count}", logging.WARNING)
