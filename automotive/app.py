@@ -101,6 +101,7 @@ class Application:
         self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, name)
         self.guard = GuardCondition(self.bus.participant)
         self._ready = False
+        self.iterations = 0
 
     def _network_config(self) -> NetworkConfig | None:
         explicit = any(key in self.props for key in ("config.network", "config.interface", "config.peers"))
@@ -145,20 +146,24 @@ class Application:
             raise ConfigError(f"{self.props.source}: unknown key(s) for {self.name}: {where}")
         self._ready = True
 
+    def tick(self) -> int:
+        """Count one iteration of the application's work; stop once ``--count`` iterations are done."""
+        self.iterations += 1
+        if self.count and self.iterations >= self.count:
+            self.stop()
+        return self.iterations
+
     def periodic(self, interval_s: float) -> Iterator[int]:
         """Yield iteration numbers 1, 2, ... every ``interval_s`` seconds until stopped or ``--count`` is reached."""
         self.ready()
-        iteration = 0
         next_time = time.monotonic()
-        while self.running and (self.count == 0 or iteration < self.count):
-            iteration += 1
-            yield iteration
+        while self.running:
+            yield self.tick()
             next_time += interval_s
             delay = next_time - time.monotonic()
             if delay < 0:  # fell behind (a slow step): restart the schedule rather than burst
                 next_time = time.monotonic()
-                delay = 0
-            if delay > 0 and self.stop_event.wait(delay):
+            elif self.stop_event.wait(delay):
                 break
 
     def waitset(self, *readers: DataReader[Any]) -> WaitSet:
@@ -169,16 +174,16 @@ class Application:
         waitset.attach(self.guard)
         return waitset
 
-    def wait_iterations(self, waitset: WaitSet, timeout_s: float = 1.0) -> Iterator[int]:
-        """Yield after each wake-up of ``waitset`` (data or timeout), until stopped or ``--count`` iterations."""
+    def wake_ups(self, waitset: WaitSet, timeout_s: float = 1.0) -> Iterator[None]:
+        """Yield after each wake-up of ``waitset`` (data or timeout) until stopped.
+
+        The application calls :meth:`tick` for each unit of its work, which ends the loop after ``--count`` of them.
+        """
         self.ready()
-        iteration = 0
-        while self.running and (self.count == 0 or iteration < self.count):
+        while self.running:
             waitset.wait(int(timeout_s * 1e9))
-            if not self.running:
-                break
-            iteration += 1
-            yield iteration
+            if self.running:
+                yield None
 
     def close(self) -> None:
         self.bus.close()

@@ -1,0 +1,82 @@
+"""Collision avoidance: decides on driver alerts and commands the vehicle platform from the fused object list.
+
+Data flow:  Sensor::SensorObjectList on SensorObjects  --+-->  Alerts::DriverAlerts on AlertTopic
+            Platform::PlatformStatus on PlatformStatus  --+-->  Platform::PlatformControl on PlatformControl
+
+An object taller than config.alertSize (size[1], metres; 2.0 by default) needs the driver's attention; when none is
+left after an alert, an all-clear alert is written. Every object list is answered with a platform command that follows
+the first object.
+"""
+
+from __future__ import annotations
+
+import sys
+
+from automotive.app import Application, run
+from automotive.clock import now_timestamp
+from automotive.types.Alerts import DriverAlerts
+from automotive.types.Common import ClassificationEnum, IndicatorStatusEnum
+from automotive.types.Platform import PlatformControl, PlatformStatus
+from automotive.types.Sensor import SensorObjectList
+
+ALL_CLEAR = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False, backCollision=False,
+                         parkingCollision=False, driverAttention=False)
+ATTENTION = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False, backCollision=False,
+                         parkingCollision=False, driverAttention=True)
+
+
+def needs_attention(objects: SensorObjectList, alert_size: float) -> bool:
+    return any(obj.size[1] > alert_size for obj in objects.objects)
+
+
+def command_for(objects: SensorObjectList, sample_id: int) -> PlatformControl:
+    """A platform command that follows the first object of the list (or a neutral one for an empty list)."""
+    command = PlatformControl(sample_id=sample_id, timestamp=now_timestamp(), vehicleSteerAngle=0.0, speed=0.0,
+                              blinkerStatus=IndicatorStatusEnum.INDICATOR_OFF)
+    if objects.objects:
+        first = objects.objects[0]
+        command.blinkerStatus = IndicatorStatusEnum(ClassificationEnum(first.classification).value % 4)
+        command.speed = first.velocity[0]
+        command.vehicleSteerAngle = first.position[0]
+    return command
+
+
+def body(app: Application) -> None:
+    alert_size = app.props.get_float("config.alertSize", 2.0)
+    objects_reader = app.reader("SensorObjects", SensorObjectList, "SensorObjects")
+    status_reader = app.reader("PlatformStatus", PlatformStatus, "PlatformStatus")
+    alert_writer = app.writer("Alerts", DriverAlerts, "AlertTopic")
+    control_writer = app.writer("PlatformControl", PlatformControl, "PlatformControl")
+
+    alert_active = False
+    sample_id = 0
+    status_count = 0
+    for _ in app.wake_ups(app.waitset(objects_reader, status_reader)):
+        status_count += len(status_reader.take(N=1000))  # read, and otherwise ignored, as in the original
+        for objects in objects_reader.take(N=100):
+            if not isinstance(objects, SensorObjectList):
+                continue
+            if needs_attention(objects, alert_size):
+                alert_writer.write(ATTENTION)
+                if not alert_active:
+                    app.log.info("ALERT: driver attention needed (an object taller than %.1f m)", alert_size)
+                alert_active = True
+            elif alert_active:
+                alert_writer.write(ALL_CLEAR)
+                app.log.info("all clear: no object taller than %.1f m", alert_size)
+                alert_active = False
+            sample_id += 1
+            command = command_for(objects, sample_id)
+            control_writer.write(command)
+            app.log.info("command %d: speed %.2f, steer %.2f, blinker %s (%d objects, %d status samples read)",
+                         sample_id, command.speed, command.vehicleSteerAngle, command.blinkerStatus.name,
+                         len(objects.objects), status_count)
+            app.tick()
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run("collision_avoidance", __doc__ or "", body, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,34 @@
+"""Vision sensor: publishes the objects it sees, one row of its CSV file every interval.
+
+Data flow:  dataFile (CSV)  -->  Vision::VisionSensor on VisionTopic (keyed by config.sensorId)
+"""
+
+from __future__ import annotations
+
+import sys
+from itertools import cycle
+
+from automotive.app import Application, run
+from automotive.clock import now_timestamp
+from automotive.csvdata import load_vision_rows
+from automotive.types.Vision import VisionSensor
+
+
+def body(app: Application) -> None:
+    sensor_id = app.props.get_int("config.sensorId", 1, minimum=0, maximum=2**31 - 1)
+    interval_s = app.props.get_int("config.pubInterval", 100, minimum=1) / 1000
+    rows = load_vision_rows(app.props.get_path("dataFile"), app.log)
+    writer = app.writer("Vision", VisionSensor, "VisionTopic")
+    app.log.info("vision sensor %d: %d rows, publishing every %.0f ms", sensor_id, len(rows), interval_s * 1000)
+
+    for iteration, objects in zip(app.periodic(interval_s), cycle(rows)):
+        writer.write(VisionSensor(id=sensor_id, timestamp=now_timestamp(), objects=objects))
+        app.log.info("published sample %d: %d object(s)", iteration, len(objects))
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run("vision", __doc__ or "", body, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
