@@ -33,6 +33,7 @@ from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, Sample
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
+from automotive.bounds import BoundError
 from automotive.endpoints import Databus
 from automotive.errors import ConfigError
 from automotive.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, user_uri
@@ -227,7 +228,7 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
         app = Application(name, args, load_properties(name, args), log)
         body(app)
         return 0
-    except ConfigError as error:
+    except (ConfigError, BoundError) as error:
         print(f"{name}: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:

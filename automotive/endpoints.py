@@ -16,12 +16,21 @@ from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
+from automotive import bounds
 from automotive.errors import ConfigError
 from automotive.network import NetworkConfig, user_uri
 from automotive.qos import QosProfiles
 from automotive.status import EventHook, StatusListener
 
 T = TypeVar("T")
+
+
+class CheckedWriter(DataWriter[T]):
+    """A DataWriter that refuses, with a clear BoundError, a sample over its IDL bounds before serializing it."""
+
+    def write(self, sample: T, timestamp: int | None = None) -> None:
+        bounds.check(sample)
+        super().write(sample, timestamp)
 
 
 class Databus:
@@ -70,7 +79,7 @@ class Databus:
                hook: EventHook | None = None) -> DataWriter[T]:
         qos = self.profiles.writer_qos(self.library, profile)
         topic = self.topic(topic_name, data_type)
-        return DataWriter(self.publisher, topic, qos=qos, listener=self._listener(topic_name, hook))
+        return CheckedWriter(self.publisher, topic, qos=qos, listener=self._listener(topic_name, hook))
 
     def reader(self, topic_name: str, data_type: type[T], profile: str,
                hook: EventHook | None = None) -> DataReader[T]:

@@ -1,0 +1,76 @@
+"""IDL bounds of sequences and strings, checked before a sample is written, with a clear message.
+
+Cyclone Python refuses an over-bound sequence deep in its serializer with a message that prints the whole value;
+this check names the type, the member, the length and the bound instead. It also enforces bounds the generated
+types cannot express (Cyclone Python rejects sequence bounds above 65,535): see EXTRA_BOUNDS.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+from typing import Any
+
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl._type_normalize import get_extended_type_hints
+from cyclonedds.idl.types import bounded_str, sequence
+
+from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_
+
+# (type, member) -> bound, for bounds of the original IDL that the generated code leaves out.
+EXTRA_BOUNDS: dict[tuple[type, str], int] = {
+    (PointCloud2_, "data_"): POINT_CLOUD_MAX_DATA,
+}
+
+
+class BoundError(ValueError):
+    """A sequence or string longer than its IDL bound."""
+
+
+@dataclass(frozen=True)
+class _MemberCheck:
+    name: str
+    bound: int | None  # None: unbounded, only the elements are checked
+    element_type: type | None  # a struct whose own members need checking, else None
+
+
+def type_name(cls: type) -> str:
+    return getattr(cls, "__idl_typename__", cls.__name__).replace(".", "::")
+
+
+@cache
+def _plan(cls: type) -> tuple[_MemberCheck, ...]:
+    checks = []
+    for name, hint in get_extended_type_hints(cls).items():
+        bound = EXTRA_BOUNDS.get((cls, name))
+        element: type | None = None
+        if isinstance(hint, sequence):
+            bound = bound or hint.max_length
+            subtype = hint.subtype
+            if isinstance(subtype, type) and issubclass(subtype, IdlStruct) and _plan(subtype):
+                element = subtype
+        elif isinstance(hint, bounded_str):
+            bound = hint.max_length
+        elif isinstance(hint, type) and issubclass(hint, IdlStruct) and _plan(hint):
+            checks.append(_MemberCheck(name, None, hint))
+            continue
+        if bound or element:
+            checks.append(_MemberCheck(name, bound, element))
+    return tuple(checks)
+
+
+def check(sample: Any, path: str = "") -> None:
+    """Raise BoundError if any bounded sequence or string of ``sample`` is over its IDL bound."""
+    cls = type(sample)
+    prefix = path or type_name(cls)
+    for member in _plan(cls):
+        value = getattr(sample, member.name)
+        if member.bound is not None and len(value) > member.bound:
+            unit = "characters" if isinstance(value, str) else "elements"
+            raise BoundError(f"{prefix}.{member.name} holds {len(value)} {unit}, over its IDL bound of {member.bound}")
+        if member.element_type is not None:
+            if isinstance(value, IdlStruct):
+                check(value, f"{prefix}.{member.name}")
+            else:
+                for index, element in enumerate(value):
+                    check(element, f"{prefix}.{member.name}[{index}]")

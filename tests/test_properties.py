@@ -1,0 +1,109 @@
+"""The .properties reader: each syntax form, typed getters and defaults, overrides, and malformed input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from automotive.errors import ConfigError
+from automotive.properties import Properties
+
+SAMPLE = r"""
+# a comment
+! another comment
+
+config.domainId = 7
+config.pubInterval: 250
+config.sensorId 3
+   topic.Vision=VisionTopic   
+qos.Profile=
+dataFile=data/vision.csv
+long.value = first \
+             second
+escaped\:key = a\=b
+config.ratio=0.5
+config.enabled=yes
+config.peers = 10.0.0.2, 10.0.0.3 ,,
+"""
+
+
+@pytest.fixture
+def props(tmp_path: Path) -> Properties:
+    path = tmp_path / "app.properties"
+    path.write_text(SAMPLE)
+    return Properties.load(path)
+
+
+def test_syntax_forms(props: Properties) -> None:
+    assert props.get_int("config.domainId") == 7
+    assert props.get_int("config.pubInterval") == 250
+    assert props.get_int("config.sensorId") == 3
+    assert props.get_str("topic.Vision") == "VisionTopic"
+    assert props.get_str("qos.Profile") == ""
+    assert props.get_str("long.value") == "first second"
+    assert props.get_str("escaped:key") == "a=b"
+    assert props.get_float("config.ratio") == 0.5
+    assert props.get_bool("config.enabled") is True
+    assert props.get_list("config.peers") == ["10.0.0.2", "10.0.0.3"]
+
+
+def test_paths_resolve_against_the_file_folder(props: Properties, tmp_path: Path) -> None:
+    assert props.get_path("dataFile") == tmp_path / "data" / "vision.csv"
+
+
+def test_defaults(props: Properties) -> None:
+    assert props.get_int("config.missing", 42) == 42
+    assert props.get_str("config.missing", "x") == "x"
+    assert props.get_bool("config.missing", False) is False
+    assert props.get_list("config.missing", []) == []
+
+
+def test_overrides_win_and_are_named_in_errors(props: Properties) -> None:
+    props.override(["config.domainId=9", "config.pubInterval = abc"])
+    assert props.get_int("config.domainId") == 9
+    with pytest.raises(ConfigError, match=r"^-D: config.pubInterval = 'abc' is not an integer$"):
+        props.get_int("config.pubInterval")
+    with pytest.raises(ConfigError, match=r"-D 'nokey': expected key=value"):
+        props.override(["nokey"])
+
+
+def test_unused_keys_are_reported(props: Properties) -> None:
+    props.get_int("config.domainId")
+    assert "config.sensorId" in props.unused_keys()
+    assert "config.domainId" not in props.unused_keys()
+
+
+@pytest.mark.parametrize("getter,key,message", [
+    ("get_int", "topic.Vision", r"app.properties: topic.Vision = 'VisionTopic' is not an integer"),
+    ("get_float", "topic.Vision", r"app.properties: topic.Vision = 'VisionTopic' is not a number"),
+    ("get_bool", "topic.Vision", r"app.properties: topic.Vision = 'VisionTopic' is not a boolean"),
+    ("get_str", "config.absent", r"app.properties: missing required key 'config.absent'"),
+    ("get_int", "config.absent", r"app.properties: missing required key 'config.absent'"),
+])
+def test_malformed_values_name_file_key_and_expectation(props: Properties, getter: str, key: str,
+                                                        message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        getattr(props, getter)(key)
+
+
+def test_out_of_range(props: Properties) -> None:
+    with pytest.raises(ConfigError, match=r"config.domainId = 7 is out of range \(expected 0..5\)"):
+        props.get_int("config.domainId", minimum=0, maximum=5)
+
+
+def test_choice(props: Properties) -> None:
+    with pytest.raises(ConfigError, match=r"topic.Vision = 'VisionTopic' is not one of periodic, event"):
+        props.get_choice("topic.Vision", ["periodic", "event"])
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"nothing.properties: properties file not found"):
+        Properties.load(tmp_path / "nothing.properties")
+
+
+def test_line_without_key(tmp_path: Path) -> None:
+    path = tmp_path / "bad.properties"
+    path.write_text("ok=1\n= value\n")
+    with pytest.raises(ConfigError, match=r"bad.properties:2: a line has a value but no key"):
+        Properties.load(path)

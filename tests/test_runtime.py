@@ -1,0 +1,117 @@
+"""The shared runtime: endpoints from profiles exchange data, network configurations, the command line."""
+
+from __future__ import annotations
+
+import logging
+import re
+import signal
+import time
+from pathlib import Path
+
+import pytest
+from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+
+from automotive.bounds import BoundError
+from automotive.endpoints import Databus
+from automotive.errors import ConfigError
+from automotive.network import NetworkConfig
+from automotive.qos import QosProfiles
+from automotive.types.Alerts import DriverAlerts
+from automotive.types.Common import ClassificationEnum, POSIXTimestamp
+from automotive.types.Vision import VisionObject, VisionSensor
+
+ROOT = Path(__file__).resolve().parent.parent
+PROFILES = QosProfiles(ROOT / "qos" / "automotive_qos.xml")
+
+
+def wait_for_samples(reader, count: int, timeout: float = 10.0) -> list:  # type: ignore[no-untyped-def]
+    waitset = WaitSet(reader.participant)
+    waitset.attach(ReadCondition(reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+    received: list = []
+    deadline = time.monotonic() + timeout
+    while len(received) < count and time.monotonic() < deadline:
+        waitset.wait(int(0.2e9))
+        received.extend(reader.take(N=100))
+    return received
+
+
+def test_writer_and_reader_from_profiles_exchange_data(domain_id: int) -> None:
+    log = logging.getLogger("test")
+    bus = Databus(domain_id, PROFILES, "AutomotiveLibrary", log, NetworkConfig())
+    try:
+        reader = bus.reader("AlertTopic", DriverAlerts, "HMI")
+        writer = bus.writer("AlertTopic", DriverAlerts, "HMI")
+        alert = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=True, frontCollision=False,
+                             backCollision=False, parkingCollision=False, driverAttention=True)
+        writer.write(alert)
+        assert wait_for_samples(reader, 1) == [alert]
+
+        vision_reader = bus.reader("VisionTopic", VisionSensor, "Vision")
+        vision_writer = bus.writer("VisionTopic", VisionSensor, "Vision")
+        deadline = time.monotonic() + 10
+        while vision_writer.get_matched_subscriptions() == [] and time.monotonic() < deadline:
+            time.sleep(0.01)  # best effort: write only once matched
+        obj = VisionObject(ClassificationEnum.CLASSIFICATION_CAR, [1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [7.0, 8.0, 9.0])
+        samples = [VisionSensor(id=i, timestamp=POSIXTimestamp(1, 2), objects=[obj] * i) for i in (1, 2)]
+        for sample in samples:
+            vision_writer.write(sample)
+        assert sorted(wait_for_samples(vision_reader, 2), key=lambda s: s.id) == samples
+        with pytest.raises(BoundError, match="Vision::VisionSensor.objects holds 11 elements"):
+            vision_writer.write(VisionSensor(id=3, timestamp=POSIXTimestamp(1, 2), objects=[obj] * 11))
+    finally:
+        bus.close()
+
+
+def test_network_configurations() -> None:
+    loopback = NetworkConfig.from_settings().cyclone_xml()
+    assert '<NetworkInterface name="lo"/>' in loopback and "<AllowMulticast>false" in loopback
+    assert '<Peer address="127.0.0.1"/>' in loopback
+
+    lan = NetworkConfig.from_settings(interface="eth1").cyclone_xml()
+    assert '<NetworkInterface name="eth1"/>' in lan and "<AllowMulticast>true" in lan and "<Peer" not in lan
+
+    peers = NetworkConfig.from_settings(peers=["10.0.0.2", "hostb"], max_participants=30)
+    xml = peers.cyclone_xml()
+    assert "<AllowMulticast>false" in xml
+    assert '<Peer address="10.0.0.2"/><Peer address="hostb"/>' in xml
+    assert "<MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>" in xml
+
+    with pytest.raises(ConfigError, match="peer 'bad host!' is not a host name or IP address"):
+        NetworkConfig.from_settings(peers=["bad host!"])
+    with pytest.raises(ConfigError, match="network 'peers' needs a list of peers"):
+        NetworkConfig.from_settings(network="peers")
+    with pytest.raises(ConfigError, match="network 'wifi' is not one of loopback, lan, peers"):
+        NetworkConfig.from_settings(network="wifi")
+
+
+# --- the command-line convention, through a real application (the HMI needs no data file) --------------------------
+
+def test_count_and_clean_exit(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
+    hmi = apps.start("hmi", "--ui", "console", "--domain", str(domain_id))
+    hmi.wait_for("waiting for alerts")
+    assert hmi.stop(signal.SIGTERM) == 0
+    assert "stopped" in hmi.output and "Traceback" not in hmi.output
+
+    hmi = apps.start("hmi", "--ui", "console", "--domain", str(domain_id))
+    hmi.wait_for("waiting for alerts")
+    assert hmi.stop(signal.SIGINT) == 0
+    assert "Traceback" not in hmi.output
+
+
+@pytest.mark.parametrize("args,message", [
+    (["-D", "config.domainId=abc"], r"^hmi: -D: config.domainId = 'abc' is not an integer$"),
+    (["-D", "config.domainId=999"], r"^hmi: -D: config.domainId = 999 is out of range \(expected 0..232\)$"),
+    (["-D", "qos.Alerts.Profile=Nope"], r"^hmi: .*automotive_qos.xml: no QoS profile 'AutomotiveLibrary::Nope'"),
+    (["-D", "qos.File=/nonexistent/qos.xml"], r"^hmi: /nonexistent/qos.xml: QoS file not found$"),
+    (["-D", "config.typo=1"], r"^hmi: .*hmi.properties: unknown key\(s\) for hmi: 'config.typo' \(-D\)$"),
+    (["--properties", "/nonexistent/hmi.properties"], r"^hmi: /nonexistent/hmi.properties: properties file not found$"),
+    (["--peers", "bad host!"], r"^hmi: .*peer 'bad host!' is not a host name or IP address$"),
+    (["--count", "-1"], r"^hmi: --count -1: expected 0 \(forever\) or a positive number$"),
+])
+def test_bad_input_is_one_line_and_exit_2(apps, args: list[str], message: str) -> None:  # type: ignore[no-untyped-def]
+    result = apps.run("hmi", "--ui", "console", *args)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert re.search(message, lines[0]), lines[0]
+    assert "Traceback" not in result.stderr + result.stdout
