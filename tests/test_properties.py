@@ -16,7 +16,7 @@ SAMPLE = r"""
 config.domainId = 7
 config.pubInterval: 250
 config.sensorId 3
-   topic.Vision=VisionTopic   
+   topic.Vision=VisionTopic{trailing}
 qos.Profile=
 dataFile=data/vision.csv
 long.value = first \
@@ -25,7 +25,7 @@ escaped\:key = a\=b
 config.ratio=0.5
 config.enabled=yes
 config.peers = 10.0.0.2, 10.0.0.3 ,,
-"""
+""".format(trailing="   ")
 
 
 @pytest.fixture
