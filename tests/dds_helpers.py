@@ -1,0 +1,43 @@
+"""In-process DDS endpoints for tests, built with the project's own runtime (profiles, loopback)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+
+from automotive.endpoints import Databus
+from automotive.network import NetworkConfig
+from automotive.qos import QosProfiles
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def make_bus(domain_id: int, qos_file: Path | None = None) -> Databus:
+    profiles = QosProfiles(qos_file or ROOT / "qos" / "automotive_qos.xml")
+    return Databus(domain_id, profiles, "AutomotiveLibrary", logging.getLogger("test"), NetworkConfig())
+
+
+def wait_until(condition: Callable[[], bool], timeout: float = 15.0, what: str = "condition") -> None:
+    """Poll a condition (a DDS status, a file) until it holds; fail after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+        time.sleep(0.02)
+
+
+def take_samples(reader: Any, count: int, timeout: float = 15.0) -> list[Any]:
+    """Take samples (valid data only) until ``count`` arrived or the timeout passed."""
+    waitset = WaitSet(reader.participant)
+    waitset.attach(ReadCondition(reader, SampleState.Any | ViewState.Any | InstanceState.Any))
+    received: list[Any] = []
+    deadline = time.monotonic() + timeout
+    while len(received) < count and time.monotonic() < deadline:
+        waitset.wait(int(0.1e9))
+        received.extend(s for s in reader.take(N=256) if isinstance(s, reader.topic.data_type))
+    return received
