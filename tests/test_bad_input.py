@@ -1,0 +1,69 @@
+"""Bad input to the applications: one clear line naming the file, key or value; non-zero exit; no traceback."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+from test_system import HEADER, scene
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def assert_one_line_error(result, pattern: str) -> None:  # type: ignore[no-untyped-def]
+    assert result.returncode == 2, result.stdout + result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert re.search(pattern, lines[0]), lines[0]
+    assert "Traceback" not in result.stdout + result.stderr
+
+
+def test_malformed_rows_are_reported_once_and_skipped(apps, domain_id: int, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    good = scene(tmp_path / "good.csv", rows=3).read_text().splitlines()
+    bad_rows = [
+        good[1].replace(",12.5,", ",twelve,", 1),  # not a number
+        ",".join(good[1].split(",")[:50]),  # too few columns
+        good[1].rsplit(",", 1)[0] + ",11",  # numObjects outside 0..10
+    ]
+    data = tmp_path / "vision.csv"
+    data.write_text("\n".join([HEADER, good[1], *bad_rows, good[2]]) + "\n")
+    result = apps.run("vision", "--domain", str(domain_id), "--count", "6", "-D", "config.pubInterval=10",
+                      "-D", f"dataFile={data}")
+    assert result.returncode == 0, result.stderr
+    for line_number in (3, 4, 5):
+        assert result.stdout.count(f"vision.csv:{line_number}:") == 1, result.stdout  # once, though rows wrap
+    assert "numObjects 11 is outside 0..10" in result.stdout
+    assert result.stdout.count("published sample") == 6
+
+
+@pytest.mark.parametrize("app", ["vision", "vehicle_platform"])
+def test_data_file_without_usable_rows(apps, app: str, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    data = tmp_path / "empty.csv"
+    data.write_text("just,a,header\n1,2\n")
+    assert_one_line_error(apps.run(app, "-D", f"dataFile={data}"), rf"^{app}: .*empty.csv: no usable data row")
+
+
+def test_unreadable_data_file(apps, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    assert_one_line_error(apps.run("vision", "-D", f"dataFile={tmp_path}/missing.csv"),
+                          r"^vision: .*missing.csv: cannot read the data file")
+
+
+def test_missing_required_property(apps, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    text = (ROOT / "properties" / "vision.properties").read_text()
+    props = tmp_path / "vision.properties"
+    text = text.replace("qos.File=../qos/", f"qos.File={ROOT}/qos/")
+    props.write_text("\n".join(line for line in text.splitlines() if not line.startswith("dataFile")))
+    assert_one_line_error(apps.run("vision", "--properties", str(props)),
+                          r"^vision: .*vision.properties: missing required key 'dataFile'$")
+
+
+@pytest.mark.parametrize("app,args,pattern", [
+    ("sensor_fusion", ["-D", "qos.Vision.Profile=Nonexistent"], r"no QoS profile 'AutomotiveLibrary::Nonexistent'"),
+    ("sensor_fusion", ["-D", "config.mode=sometimes"], r"config.mode = 'sometimes' is not one of periodic, event"),
+    ("vision", ["-D", "config.pubInterval=0"], r"config.pubInterval = 0 is out of range"),
+    ("vision", ["-D", "config.sensorId=-4"], r"config.sensorId = -4 is out of range"),
+    ("collision_avoidance", ["-D", "config.alertSize=tall"], r"config.alertSize = 'tall' is not a number"),
+])
+def test_bad_properties(apps, app: str, args: list[str], pattern: str) -> None:  # type: ignore[no-untyped-def]
+    assert_one_line_error(apps.run(app, *args), rf"^{app}: .*{pattern}")
