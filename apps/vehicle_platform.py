@@ -10,11 +10,10 @@ the rows of the CSV file, wrapping around.
 from __future__ import annotations
 
 import sys
-from itertools import cycle
 
 from automotive.app import Application, run
 from automotive.clock import format_timestamp, now_timestamp
-from automotive.csvdata import load_platform_rows
+from automotive.csvdata import cycle_rows, load_platform_rows
 from automotive.types.Common import IndicatorStatusEnum
 from automotive.types.Platform import PlatformControl, PlatformStatus
 
@@ -28,7 +27,7 @@ def body(app: Application) -> None:
 
     steer_angle = 0.0
     blinker = IndicatorStatusEnum.INDICATOR_OFF
-    for iteration, row in zip(app.periodic(interval_s), cycle(rows)):
+    for iteration, row in zip(app.periodic(interval_s), cycle_rows(rows)):
         for command in control_reader.take(N=1000):
             if not isinstance(command, PlatformControl):
                 continue

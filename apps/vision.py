@@ -6,11 +6,10 @@ Data flow:  dataFile (CSV)  -->  Vision::VisionSensor on VisionTopic (keyed by c
 from __future__ import annotations
 
 import sys
-from itertools import cycle
 
 from automotive.app import Application, run
 from automotive.clock import now_timestamp
-from automotive.csvdata import load_vision_rows
+from automotive.csvdata import cycle_rows, load_vision_rows
 from automotive.types.Vision import VisionSensor
 
 
@@ -21,7 +20,7 @@ def body(app: Application) -> None:
     writer = app.writer("Vision", VisionSensor, "VisionTopic")
     app.log.info("vision sensor %d: %d rows, publishing every %.0f ms", sensor_id, len(rows), interval_s * 1000)
 
-    for iteration, objects in zip(app.periodic(interval_s), cycle(rows)):
+    for iteration, objects in zip(app.periodic(interval_s), cycle_rows(rows)):
         writer.write(VisionSensor(id=sensor_id, timestamp=now_timestamp(), objects=objects))
         app.log.info("published sample %d: %d object(s)", iteration, len(objects))
 

@@ -15,10 +15,12 @@ from pathlib import Path
 DEFAULT_TIMEOUT = 30.0
 
 
-class AppProcess:
-    def __init__(self, name: str, args: list[str], cwd: Path, env: dict[str, str] | None = None):
+class CommandProcess:
+    """Any command (a script, ``ip netns exec ...``), with its output collected line by line for :meth:`wait_for`."""
+
+    def __init__(self, name: str, command: list[str], cwd: Path, env: dict[str, str] | None = None):
         self.name = name
-        command = [sys.executable, "-m", f"apps.{name}", *args]
+        self.command = command
         full_env = dict(os.environ)
         full_env["PYTHONPATH"] = str(cwd) + os.pathsep + full_env.get("PYTHONPATH", "")
         full_env["PYTHONUNBUFFERED"] = "1"
@@ -85,13 +87,26 @@ class AppProcess:
         return self.process.returncode
 
 
+class AppProcess(CommandProcess):
+    """One application, ``python -m apps.<name> <args>``."""
+
+    def __init__(self, name: str, args: list[str], cwd: Path, env: dict[str, str] | None = None):
+        super().__init__(name, [sys.executable, "-m", f"apps.{name}", *args], cwd, env)
+
+
 class AppRunner:
     def __init__(self, root: Path):
         self.root = root
-        self.processes: list[AppProcess] = []
+        self.processes: list[CommandProcess] = []
 
     def start(self, name: str, *args: str, env: dict[str, str] | None = None) -> AppProcess:
         process = AppProcess(name, list(args), self.root, env)
+        self.processes.append(process)
+        return process
+
+    def start_command(self, name: str, command: list[str], env: dict[str, str] | None = None) -> CommandProcess:
+        """Start any command (stopped at the end like the applications); ``name`` labels its failures."""
+        process = CommandProcess(name, command, self.root, env)
         self.processes.append(process)
         return process
 
