@@ -16,7 +16,7 @@ from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
-from automotive import bounds
+from automotive import bounds, fastpath
 from automotive.errors import ConfigError
 from automotive.network import NetworkConfig, user_uri
 from automotive.qos import QosProfiles
@@ -38,6 +38,7 @@ class Databus:
 
     def __init__(self, domain_id: int, profiles: QosProfiles, library: str, log: logging.Logger,
                  network: NetworkConfig | None = None, name: str = "automotive"):
+        fastpath.enable()  # octet data as one block; before any entity is created
         self.domain_id = domain_id
         self.profiles = profiles
         self.library = library
