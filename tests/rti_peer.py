@@ -1,0 +1,193 @@
+"""A real RTI Connext peer for interoperability tests, through RTI Connector for Python (rticonnextdds-connector).
+
+The types, topics and QoS live in tests/rti/automotive_rti.xml, declared as the original RTI automotive example
+declares them (everything appendable, helpers at the root). This module composes, per peer, one RTI participant in
+the test's domain holding only the writers and readers the test asks for, so matching counts mean what they say.
+
+    with RtiPeer(domain_id, writers=["Vision"], readers=["Alerts"]) as peer:
+        peer.wait_for_readers("Vision")                 # our Cyclone reader was discovered and matched
+        peer.write("Vision", {"id": 1, "timestamp": {"s": 1, "ns": 2}, "objects": []})
+        alerts = peer.take_until("Alerts", 1)           # samples as dicts, bounded wait
+
+Endpoint names (see ENDPOINTS): Circle, Lidar, Alerts, Vision, PlatformControl, PlatformStatus, SensorObjects.
+RTI stays on loopback (UDPv4 only, no multicast, initial peer 127.0.0.1): see the Loopback QoS profile.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+from xml.sax.saxutils import quoteattr
+
+import rticonnextdds_connector as rti
+
+RTI_XML = Path(__file__).resolve().parent / "rti" / "automotive_rti.xml"
+QOS_LIBRARY = "RtiPeerQos"
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    """One flow of the databus as the RTI peer sees it: topic and the default QoS profiles of its endpoints."""
+
+    topic: str
+    writer_profile: str
+    reader_profile: str
+
+
+# The "Writer" profile offers reliable, transient local, a 1 s deadline and a 10 s liveliness lease, which every
+# reader profile of ours accepts. Readers follow the original example's flows: best effort where our writers are
+# best effort (a reliable reader would not match them), reliable for LiDAR, and the HMI's QoS for alerts. Like a
+# real RTI Connext 6 application, every RTI endpoint uses XCDR1 and requests a latency budget of 0.
+ENDPOINTS: dict[str, Endpoint] = {
+    "Circle": Endpoint("Circle", "Writer", "BestEffortReader"),
+    "Lidar": Endpoint("rt/LidarTopic", "Writer", "ReliableReader"),
+    "Alerts": Endpoint("AlertTopic", "Alerts", "Alerts"),
+    "Vision": Endpoint("VisionTopic", "Writer", "BestEffortReader"),
+    "PlatformControl": Endpoint("PlatformControl", "Writer", "BestEffortReader"),
+    "PlatformStatus": Endpoint("PlatformStatus", "Writer", "BestEffortReader"),
+    "SensorObjects": Endpoint("SensorObjects", "Writer", "BestEffortReader"),
+}
+
+# Each peer gets its own participant library name: RTI keeps XML definitions per process.
+_peer_numbers = itertools.count(1)
+
+
+def _participant_xml(library: str, domain_id: int, writers: Mapping[str, str], readers: Mapping[str, str]) -> str:
+    def endpoint(tag: str, qos_tag: str, name: str, profile: str) -> str:
+        topic = ENDPOINTS[name].topic
+        return (f"<{tag} name={quoteattr(name)} topic_ref={quoteattr(topic)}>"
+                f"<{qos_tag} base_name={quoteattr(f'{QOS_LIBRARY}::{profile}')}/></{tag}>")
+
+    publisher = "".join(endpoint("data_writer", "datawriter_qos", n, p) for n, p in writers.items())
+    subscriber = "".join(endpoint("data_reader", "datareader_qos", n, p) for n, p in readers.items())
+    return (f"<dds><domain_participant_library name={quoteattr(library)}>"
+            f"<domain_participant name=\"Peer\" domain_ref=\"RtiPeerDomains::Automotive\" domain_id=\"{domain_id}\">"
+            f"<domain_participant_qos base_name=\"{QOS_LIBRARY}::Loopback\"/>"
+            f"<publisher name=\"Pub\">{publisher}</publisher>"
+            f"<subscriber name=\"Sub\">{subscriber}</subscriber>"
+            f"</domain_participant></domain_participant_library></dds>")
+
+
+def _profiles(names: Iterable[str] | Mapping[str, str], default: Callable[[Endpoint], str]) -> dict[str, str]:
+    """Endpoint name -> QoS profile; a mapping picks profiles explicitly, a plain list takes the defaults."""
+    chosen = dict(names) if isinstance(names, Mapping) else {name: "" for name in names}
+    for name in chosen:
+        if name not in ENDPOINTS:
+            raise ValueError(f"unknown RTI peer endpoint '{name}' (known: {', '.join(ENDPOINTS)})")
+    return {name: profile or default(ENDPOINTS[name]) for name, profile in chosen.items()}
+
+
+class RtiPeer:
+    """One RTI Connext participant with the requested writers and readers, in ``domain_id``, on loopback.
+
+    ``writers``/``readers`` are endpoint names (keys of ENDPOINTS), or mappings from endpoint name to a QoS
+    profile of the RtiPeerQos library: "Writer", "WriterXcdr2" (writes XCDR2), "ReliableReader",
+    "BestEffortReader", "ReliableReaderXcdr2"/"BestEffortReaderXcdr2" (also accept XCDR2), "Alerts".
+    Samples are dicts as RTI Connector gives them: nested dicts for structs, lists for sequences, arrays and octet
+    sequences (a list of ints), ints for enums.
+    """
+
+    def __init__(self, domain_id: int, writers: Iterable[str] | Mapping[str, str] = (),
+                 readers: Iterable[str] | Mapping[str, str] = (), xml: Path = RTI_XML):
+        self.domain_id = domain_id
+        self.writers = _profiles(writers, lambda e: e.writer_profile)
+        self.readers = _profiles(readers, lambda e: e.reader_profile)
+        library = f"RtiPeer{next(_peer_numbers)}"
+        participant = _participant_xml(library, domain_id, self.writers, self.readers)
+        self.connector: rti.Connector | None = rti.Connector(f"{library}::Peer", f'{xml};str://"{participant}"')
+        self._outputs = {name: self.connector.get_output(f"Pub::{name}") for name in self.writers}
+        self._inputs = {name: self.connector.get_input(f"Sub::{name}") for name in self.readers}
+
+    def __enter__(self) -> RtiPeer:
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, error: BaseException | None,
+                 trace: TracebackType | None) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Delete the participant and all its endpoints (safe to call twice)."""
+        if self.connector is not None:
+            self.connector.close()
+            self.connector = None
+            self._outputs.clear()
+            self._inputs.clear()
+
+    def output(self, name: str) -> rti.Output:
+        """The Connector Output of writer ``name``, for anything this helper does not wrap."""
+        return self._outputs[name]
+
+    def input(self, name: str) -> rti.Input:
+        """The Connector Input of reader ``name``."""
+        return self._inputs[name]
+
+    def matched_readers(self, name: str) -> int:
+        """How many DDS readers (ours included) writer ``name`` currently matches."""
+        return len(self._outputs[name].matched_subscriptions)
+
+    def matched_writers(self, name: str) -> int:
+        """How many DDS writers reader ``name`` currently matches."""
+        return len(self._inputs[name].matched_publications)
+
+    def wait_for_readers(self, name: str, count: int = 1, timeout: float = 15.0) -> None:
+        """Wait until writer ``name`` matches at least ``count`` readers; AssertionError after ``timeout`` s."""
+        _wait(lambda: self.matched_readers(name) >= count, timeout, f"RTI writer {name} to match {count} reader(s)")
+
+    def wait_for_writers(self, name: str, count: int = 1, timeout: float = 15.0) -> None:
+        """Wait until reader ``name`` matches at least ``count`` writers; AssertionError after ``timeout`` s."""
+        _wait(lambda: self.matched_writers(name) >= count, timeout, f"RTI reader {name} to match {count} writer(s)")
+
+    def write(self, name: str, sample: Mapping[str, Any]) -> None:
+        """Write one sample given as a dict (nested dicts for structs, lists for sequences and arrays, ints for
+        enums). Members not given take their defaults (0, "", empty)."""
+        output = self._outputs[name]
+        output.clear_members()
+        output.instance.set_dictionary(dict(sample))
+        output.write()
+
+    def wait_for_acknowledgments(self, name: str, timeout: float = 15.0) -> None:
+        """Wait until every reliable reader matched by writer ``name`` acknowledged all its samples."""
+        try:
+            self._outputs[name].wait(int(timeout * 1000))
+        except rti.TimeoutError:
+            raise AssertionError(f"timed out after {timeout:.0f} s waiting for acknowledgments on RTI writer "
+                                 f"{name}") from None
+
+    def take(self, name: str) -> list[dict[str, Any]]:
+        """Take what reader ``name`` holds now: the valid samples, as dicts."""
+        reader = self._inputs[name]
+        reader.take()
+        samples = [sample.get_dictionary() for sample in reader.samples.valid_data_iter]
+        reader.return_samples()
+        return samples
+
+    def take_until(self, name: str, count: int = 1, timeout: float = 15.0,
+                   accept: Callable[[dict[str, Any]], bool] | None = None) -> list[dict[str, Any]]:
+        """Take samples from reader ``name`` until ``count`` accepted ones arrived or ``timeout`` s passed;
+        returns the accepted samples (possibly fewer than ``count``: the caller asserts)."""
+        reader = self._inputs[name]
+        received: list[dict[str, Any]] = []
+        deadline = time.monotonic() + timeout
+        while len(received) < count:
+            received.extend(s for s in self.take(name) if accept is None or accept(s))
+            remaining = deadline - time.monotonic()
+            if len(received) >= count or remaining <= 0:
+                break
+            try:
+                reader.wait(max(1, int(min(remaining, 0.2) * 1000)))
+            except rti.TimeoutError:
+                pass  # poll again: data may have come between the take and the wait
+        return received
+
+
+def _wait(condition: Callable[[], bool], timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+        time.sleep(0.02)
