@@ -15,6 +15,7 @@ import pytest
 
 pytest.importorskip("rticonnextdds_connector")
 
+from cyclonedds.core import InstanceState  # noqa: E402
 from cyclonedds.pub import DataWriter  # noqa: E402
 from cyclonedds.qos import Policy, Qos  # noqa: E402
 from cyclonedds.sub import DataReader  # noqa: E402
@@ -71,6 +72,23 @@ def test_rti_shapes_writer_reaches_our_shape_reader(bus: Databus, domain_id: int
             peer.write("Circle", {"color": color, "x": x, "y": y, "shapesize": size, "fillKind": 2, "angle": 33.5})
         received = take_samples(reader, len(shapes))
     assert sorted((s.color, s.x, s.y, s.shapesize) for s in received) == sorted(shapes)
+
+
+def test_rti_dispose_of_a_shape_reaches_our_reader(bus: Databus, domain_id: int) -> None:
+    """ShapeType's key is longer than 16 bytes: the RTI writer must serialize it with the dispose (see the Writer
+    profile) for Cyclone to know which instance was disposed."""
+    qos = Qos(Policy.Reliability.Reliable(duration(seconds=1)), Policy.History.KeepLast(8), READER_REPRESENTATION)
+    reader = DataReader(bus.subscriber, bus.topic("Circle", ShapeType), qos=qos)
+    with RtiPeer(domain_id, writers=["Circle"]) as peer:
+        peer.wait_for_readers("Circle")
+        wait_until(lambda: len(reader.get_matched_publications()) == 1, what="our reader to match the RTI writer")
+        peer.write("Circle", {"color": "ORANGE", "x": 5, "y": 6, "shapesize": 40})
+        assert [s.color for s in take_samples(reader, 1)] == ["ORANGE"]
+        output = peer.output("Circle")
+        output.instance.set_dictionary({"color": "ORANGE"})
+        output.write(action="dispose")
+        wait_until(lambda: any(s.sample_info.instance_state == InstanceState.NotAliveDisposed
+                               for s in reader.take(N=8)), what="the dispose of ORANGE")
 
 
 def test_our_alerts_writer_reaches_rti_reader_late_joiner_included(bus: Databus, domain_id: int) -> None:
