@@ -1,0 +1,102 @@
+"""Rear-view camera: publishes frames of a 32-bit LFSR test pattern that the subscriber verifies byte by byte.
+
+Data flow:  LFSR pattern (automotive.lfsr)  -->  CameraImage::CameraImageData on CameraImageData (keyed by
+config.ddsId), one frame every config.pubInterval ms (0: as fast as flow control allows), seqnum 1, 2, 3, ...
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import Any
+
+from cyclonedds.core import DDSException
+
+from automotive.app import Application, run
+from automotive.camera import (
+    FrameWriter,
+    detach_listeners,
+    frame_size,
+    frame_type,
+    tune_process_for_large_frames,
+)
+from automotive.lfsr import FramePattern
+
+ACK_TIMEOUT_S = 10.0  # at the end: how long reliable readers get to acknowledge the last frames
+
+
+class SubscriberCount:
+    """The writer's matched-reader count, fed by the status listener's hook."""
+
+    def __init__(self) -> None:
+        self.current = 0
+        self.changed = threading.Condition()
+
+    def hook(self, event: str, topic: str, status: Any) -> None:
+        if event == "publication_matched":
+            with self.changed:
+                self.current = status.current_count
+                self.changed.notify_all()
+
+    def wait_for(self, app: Application, minimum: int) -> bool:
+        """Wait until ``minimum`` readers matched or the application is stopped; True if they did."""
+        if minimum <= 0:
+            return True
+        app.log.info("waiting for %d subscriber(s)", minimum)
+        with self.changed:
+            while app.running and self.current < minimum:
+                self.changed.wait(0.2)  # bounded, so that a stop signal is noticed
+            return self.current >= minimum
+
+
+def body(app: Application) -> None:
+    camera_id = app.props.get_int("config.ddsId", 1, minimum=0, maximum=2**32 - 1)
+    interval_ms = app.props.get_float("config.pubInterval", 33, minimum=0)
+    data_type = frame_type(app.props.get_str("config.imageSize", "full"), f"{app.props.source}: config.imageSize")
+    wait_subscribers = app.props.get_int("config.waitSubscribers", 1, minimum=0)
+    size = frame_size(data_type)
+
+    subscribers = SubscriberCount()
+    # The pattern stream is generated once; each frame is a window of it, written without a copy.
+    writer = FrameWriter(app.writer("Camera", data_type, "CameraImageData", hook=subscribers.hook), FramePattern(size))
+    try:
+        tune_process_for_large_frames()
+        app.ready()
+        app.log.info("camera %d: %s frames of %d bytes, %s", camera_id, data_type.__name__, size,
+                     f"one every {interval_ms:g} ms" if interval_ms else "as fast as flow control allows")
+        if subscribers.wait_for(app, wait_subscribers):
+            publish(app, writer, camera_id, interval_ms / 1000)
+    finally:
+        detach_listeners(writer.writer)
+
+
+def publish(app: Application, writer: FrameWriter, camera_id: int, interval_s: float) -> None:
+    size = writer.codec.size
+    written = 0
+    window_start, window_frames = time.monotonic(), 0
+    for seqnum in app.periodic(interval_s):
+        try:
+            writer.write_pattern(camera_id, seqnum)
+        except DDSException as error:  # a reliable write that stayed blocked longer than max_blocking_time
+            app.log.warning("frame %d not written: %s", seqnum, error)
+            continue
+        written += 1
+        window_frames += 1
+        now = time.monotonic()
+        if now - window_start >= 1.0:
+            rate = window_frames / (now - window_start)
+            app.log.info("published %d frames: %.1f frames/s, %.1f MB/s", written, rate, rate * size / 1e6)
+            window_start, window_frames = now, 0
+
+    acknowledged = writer.writer.wait_for_acks(int(ACK_TIMEOUT_S * 1e9)) if written else True
+    app.log.info("published %d frames in total%s", written,
+                 "" if acknowledged else f" (not all acknowledged within {ACK_TIMEOUT_S:g} s)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run("camera_pub", __doc__ or "", body, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

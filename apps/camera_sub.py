@@ -1,0 +1,247 @@
+"""Rear-view camera viewer: takes each frame, measures its latency, verifies every byte and counts lost frames.
+
+Data flow:  CameraImage::CameraImageData on CameraImageData  -->  one statistics line a second (samples, size,
+latency min/avg/max, MB/s, mismatches, gaps), the totals on exit, and with --plot FILE a PNG of the latencies.
+
+Latency is the receive time minus the frame's sec_/nanosec_ stamp, both on this host's clock (publisher and
+subscriber on one host, or hosts with synchronised clocks). Each image is compared with the LFSR pattern that the
+publisher sent for its seqnum (automotive.lfsr); a jump in seqnum counts the frames missing in between as gaps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cyclonedds.core import GuardCondition, WaitSet
+
+from automotive.app import Application, run
+from automotive.camera import (
+    Frame,
+    FrameReader,
+    detach_listeners,
+    frame_size,
+    frame_type,
+    tune_process_for_large_frames,
+)
+from automotive.errors import ConfigError
+from automotive.lfsr import FramePattern
+
+TAKE_LIMIT = 16  # samples per take: a burst is handled in one call without holding many frames at once
+
+
+@dataclass
+class Window:
+    """Counters over one reporting period (or the whole run)."""
+
+    samples: int = 0
+    bytes: int = 0
+    latency_sum_ns: int = 0
+    latency_min_ns: int | None = None
+    latency_max_ns: int | None = None
+    mismatches: int = 0
+    mismatched_bytes: int = 0
+    gaps: int = 0
+
+    def add(self, size: int, latency_ns: int) -> None:
+        self.samples += 1
+        self.bytes += size
+        self.latency_sum_ns += latency_ns
+        if self.latency_min_ns is None or latency_ns < self.latency_min_ns:
+            self.latency_min_ns = latency_ns
+        if self.latency_max_ns is None or latency_ns > self.latency_max_ns:
+            self.latency_max_ns = latency_ns
+
+    def latency_ms(self) -> str:
+        if not self.samples:
+            return "-/-/-"
+        average = self.latency_sum_ns / self.samples
+        return f"{self.latency_min_ns / 1e6:.3f}/{average / 1e6:.3f}/{self.latency_max_ns / 1e6:.3f}"
+
+
+@dataclass
+class CameraStats:
+    """What the viewer saw: per-second windows, totals, every latency (for percentiles and the plot)."""
+
+    size: int
+    window: Window = field(default_factory=Window)
+    total: Window = field(default_factory=Window)
+    window_start: float = field(default_factory=time.monotonic)
+    first_receive_ns: int | None = None
+    last_receive_ns: int | None = None
+    receive_times_ns: list[int] = field(default_factory=list)
+    latencies_ns: list[int] = field(default_factory=list)
+    last_seqnum: dict[int, int] = field(default_factory=dict)
+
+    def received(self, frame: Frame, receive_ns: int, log: Any, pattern: FramePattern) -> None:
+        latency = receive_ns - frame.timestamp_ns
+        if self.first_receive_ns is None:
+            self.first_receive_ns = receive_ns
+        self.last_receive_ns = receive_ns
+        self.receive_times_ns.append(receive_ns)
+        self.latencies_ns.append(latency)
+        for window in (self.window, self.total):
+            window.add(len(frame.data), latency)
+        if not pattern.matches(frame.seqnum, frame.data):
+            wrong = pattern.mismatched_bytes(frame.seqnum, frame.data)
+            log.warning("frame %d of camera %d: %d of %d bytes differ from the pattern", frame.seqnum, frame.id,
+                        wrong, self.size)
+            for window in (self.window, self.total):
+                window.mismatches += 1
+                window.mismatched_bytes += wrong
+        previous = self.last_seqnum.get(frame.id)
+        if previous is not None:
+            if frame.seqnum > previous + 1:
+                for window in (self.window, self.total):
+                    window.gaps += frame.seqnum - previous - 1
+            elif frame.seqnum <= previous:
+                log.info("camera %d: seqnum went back from %d to %d (publisher restarted?)", frame.id, previous,
+                         frame.seqnum)
+        self.last_seqnum[frame.id] = frame.seqnum
+
+    def report_window(self, log: Any, force: bool = False) -> None:
+        """Log the statistics line once a second (or now, with ``force``), if frames arrived."""
+        now = time.monotonic()
+        elapsed = now - self.window_start
+        if elapsed < 1.0 and not force:
+            return
+        window = self.window
+        if window.samples:
+            log.info("samples=%d size=%d latency_ms(min/avg/max)=%s MB/s=%.1f mismatches=%d gaps=%d",
+                     window.samples, self.size, window.latency_ms(), window.bytes / elapsed / 1e6 if elapsed else 0.0,
+                     window.mismatches, window.gaps)
+        self.window = Window()
+        self.window_start = now
+
+    def totals_line(self) -> str:
+        total = self.total
+        seconds = 0.0
+        if self.first_receive_ns is not None and self.last_receive_ns is not None:
+            seconds = (self.last_receive_ns - self.first_receive_ns) / 1e9
+        # N frames arriving over `seconds` are N - 1 intervals: the first frame's arrival starts the clock.
+        rate = (total.samples - 1) / seconds if seconds > 0 else 0.0
+        ordered = sorted(self.latencies_ns)
+
+        def percentile(fraction: float) -> str:
+            if not ordered:
+                return "-"
+            return f"{ordered[min(len(ordered) - 1, int(fraction * len(ordered)))] / 1e6:.3f}"
+
+        average = f"{total.latency_sum_ns / total.samples / 1e6:.3f}" if total.samples else "-"
+        low = f"{total.latency_min_ns / 1e6:.3f}" if total.latency_min_ns is not None else "-"
+        high = f"{total.latency_max_ns / 1e6:.3f}" if total.latency_max_ns is not None else "-"
+        return (f"totals: samples={total.samples} size={self.size} seconds={seconds:.3f} samples/s={rate:.1f} "
+                f"MB/s={rate * self.size / 1e6:.1f} latency_ms: min={low} avg={average} p50={percentile(0.5)} "
+                f"p99={percentile(0.99)} max={high} mismatches={total.mismatches} "
+                f"mismatched_bytes={total.mismatched_bytes} gaps={total.gaps}")
+
+
+def write_plot(path: Path, stats: CameraStats, title: str) -> None:
+    """Latency over time and its histogram, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # no display needed
+    import matplotlib.pyplot as plt
+
+    start = stats.first_receive_ns or 0
+    seconds = [(t - start) / 1e9 for t in stats.receive_times_ns]
+    latencies_ms = [latency / 1e6 for latency in stats.latencies_ns]
+    figure, (over_time, histogram) = plt.subplots(1, 2, figsize=(12, 4.5))
+    over_time.plot(seconds, latencies_ms, ".", markersize=2)
+    over_time.set_xlabel("receive time (s)")
+    over_time.set_ylabel("latency (ms)")
+    over_time.set_title("latency over time")
+    over_time.grid(True, alpha=0.3)
+    histogram.hist(latencies_ms, bins=50)
+    histogram.set_xlabel("latency (ms)")
+    histogram.set_ylabel("frames")
+    histogram.set_title("latency histogram")
+    figure.suptitle(title)
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+
+
+def check_plot_path(path: Path | None) -> None:
+    if path is None:
+        return
+    if not path.parent.resolve().is_dir():
+        raise ConfigError(f"--plot {path}: folder {path.parent} does not exist")
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise ConfigError("--plot needs matplotlib (pip install matplotlib)") from None
+
+
+def body(app: Application) -> None:
+    data_type = frame_type(app.props.get_str("config.imageSize", "full"), f"{app.props.source}: config.imageSize")
+    size = frame_size(data_type)
+    plot_path: Path | None = app.args.plot
+    check_plot_path(plot_path)
+    exit_with_publisher: bool = app.args.exit_with_publisher
+
+    publisher_left = GuardCondition(app.bus.participant)
+    writers_seen = 0
+
+    def on_event(event: str, topic: str, status: Any) -> None:
+        nonlocal writers_seen
+        if event == "subscription_matched":
+            writers_seen = max(writers_seen, status.current_count)
+            if status.current_count == 0 and writers_seen and exit_with_publisher:
+                publisher_left.set(True)
+
+    frames = FrameReader(app.reader("Camera", data_type, "CameraImageData", hook=on_event))
+    stats = CameraStats(size)
+    waitset = app.waitset(frames.reader)
+    waitset.attach(publisher_left)
+    try:
+        tune_process_for_large_frames()
+        app.log.info("viewing %s frames of %d bytes%s", data_type.__name__, size,
+                     ", until the publisher leaves" if exit_with_publisher else "")
+        view(app, frames, waitset, publisher_left, FramePattern(size), stats)
+    finally:
+        detach_listeners(frames.reader)
+    stats.report_window(app.log, force=True)
+    app.log.info("%s", stats.totals_line())
+    if plot_path is not None and stats.total.samples:
+        write_plot(plot_path, stats, f"{data_type.__name__} ({size} bytes): {stats.total.samples} frames")
+        app.log.info("latency plot written to %s", plot_path)
+
+
+def view(app: Application, frames: FrameReader, waitset: WaitSet, publisher_left: GuardCondition,
+         pattern: FramePattern, stats: CameraStats) -> None:
+    for _ in app.wake_ups(waitset):
+        leaving = publisher_left.read()  # read before taking: every frame it sent is then already here
+        while app.running:  # take until the reader is empty
+            with frames.take(TAKE_LIMIT) as batch:  # the frames' data are views, valid inside this block
+                if not batch:
+                    break
+                receive_ns = time.time_ns()
+                for frame in batch:
+                    stats.received(frame, receive_ns, app.log, pattern)
+                    app.tick()
+                    if not app.running:
+                        break
+        stats.report_window(app.log)
+        if leaving:
+            app.log.info("the publisher left")
+            app.stop()
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--plot", type=Path, default=None, metavar="FILE",
+                        help="write a PNG of latency over time and its histogram on exit")
+    parser.add_argument("--exit-with-publisher", action="store_true",
+                        help="stop once every matched publisher has left (after taking what it sent)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run("camera_sub", __doc__ or "", body, argv, add_arguments)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
