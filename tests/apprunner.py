@@ -18,7 +18,8 @@ DEFAULT_TIMEOUT = 30.0
 class CommandProcess:
     """Any command (a script, ``ip netns exec ...``), with its output collected line by line for :meth:`wait_for`."""
 
-    def __init__(self, name: str, command: list[str], cwd: Path, env: dict[str, str] | None = None):
+    def __init__(self, name: str, command: list[str], cwd: Path, env: dict[str, str] | None = None,
+                 stdin: bool = False):
         self.name = name
         self.command = command
         full_env = dict(os.environ)
@@ -27,7 +28,8 @@ class CommandProcess:
         if env:
             full_env.update(env)
         self.process = subprocess.Popen(command, cwd=cwd, env=full_env, stdout=subprocess.PIPE,
-                                        stderr=subprocess.STDOUT, text=True, bufsize=1)
+                                        stderr=subprocess.STDOUT, text=True, bufsize=1,
+                                        stdin=subprocess.PIPE if stdin else None)
         self.lines: list[str] = []
         self._new_lines: queue.Queue[str | None] = queue.Queue()
         self._ended = False
@@ -70,6 +72,12 @@ class CommandProcess:
             except queue.Empty:
                 pass
 
+    def send(self, line: str) -> None:
+        """Write one line to the process's standard input (started with ``stdin=True``)."""
+        assert self.process.stdin is not None, f"{self.name} was started without stdin=True"
+        self.process.stdin.write(line + "\n")
+        self.process.stdin.flush()
+
     def wait_exit(self, timeout: float = DEFAULT_TIMEOUT) -> int:
         code = self.process.wait(timeout=timeout)
         self._reader.join(timeout=5)
@@ -104,9 +112,10 @@ class AppRunner:
         self.processes.append(process)
         return process
 
-    def start_command(self, name: str, command: list[str], env: dict[str, str] | None = None) -> CommandProcess:
+    def start_command(self, name: str, command: list[str], env: dict[str, str] | None = None,
+                      stdin: bool = False) -> CommandProcess:
         """Start any command (stopped at the end like the applications); ``name`` labels its failures."""
-        process = CommandProcess(name, command, self.root, env)
+        process = CommandProcess(name, command, self.root, env, stdin)
         self.processes.append(process)
         return process
 
