@@ -126,10 +126,15 @@ def cloud_dict(sample: dict[str, Any]) -> dict[str, Any]:
     return {key: value for key, value in sample.items() if key != "data_"}
 
 
+@pytest.mark.parametrize("our_profile,rti_profile", [
+    ("Lidar", "LidarReader"),  # our asynchronous writer: the reader must accept its latency budget
+    ("LidarInterop", "ReliableReader"),  # a reader as the original applications and RViz2 have it: budget 0
+])
 def test_rti_reader_receives_our_point_clouds_intact(apps, domain_id: int, bus: Databus,  # type: ignore[no-untyped-def]
-                                                     rti_xml: Path) -> None:
+                                                     rti_xml: Path, our_profile: str, rti_profile: str) -> None:
     writer = bus.writer("Circle", ShapeType, "Shapes")
-    lidar = apps.start("lidar", "--domain", str(domain_id), "-D", "config.noise=0")
+    lidar = apps.start("lidar", "--domain", str(domain_id), "-D", "config.noise=0",
+                       "-D", f"qos.Lidar.Profile={our_profile}")
     wait_until(lambda: len(writer.get_matched_subscriptions()) == 1, what="the LiDAR's Circle reader")
     writer.write(ShapeType("GREEN", *circle(-2, 3), 75))
     lidar.wait_for(r"shape GREEN appeared")
@@ -140,7 +145,7 @@ def test_rti_reader_receives_our_point_clouds_intact(apps, domain_id: int, bus: 
     xyz_expected, rgb_expected = decode_point_cloud2(scene.point_cloud2(0, 0))
     assert len(with_colour(xyz_expected, rgb_expected, SHAPE_RGB["GREEN"])) > 20
 
-    with RtiPeer(domain_id, readers={"Lidar": "LidarReader"}, xml=rti_xml) as peer:
+    with RtiPeer(domain_id, readers={"Lidar": rti_profile}, xml=rti_xml) as peer:
         peer.wait_for_writers("Lidar")
         lidar.wait_for(r"\[rt/LidarTopic\] writer matched a reader")
         clouds = peer.take_until("Lidar", 3)

@@ -10,6 +10,7 @@ import numpy.typing as npt
 import pytest
 from PIL import Image
 
+from automotive import fastpath
 from automotive.cloudview import render_png
 from automotive.errors import ConfigError
 from automotive.pointcloud import (
@@ -190,10 +191,17 @@ def test_decode_round_trip_through_the_serializer() -> None:
     assert np.array_equal(xyz, np.stack([flat["x"], flat["y"], flat["z"]], axis=1))
     packed = flat["rgb"].view("<u4")
     assert np.array_equal(rgb, np.stack([packed >> 16, (packed >> 8) & 255, packed & 255], axis=1).astype(np.uint8))
-    received = PointCloud2_.deserialize(msg.serialize())
-    assert not isinstance(received.data_, bytes)  # the stock deserializer gives a list of ints
-    xyz2, rgb2 = decode_point_cloud2(received)
-    assert np.array_equal(xyz2, xyz) and np.array_equal(rgb2, rgb)
+    # Through both deserializers: the stock one gives data_ as a list of ints, the fast path as bytes.
+    was_enabled = fastpath.enabled()
+    try:
+        for enable, kind in ((fastpath.disable, list), (fastpath.enable, bytes)):
+            enable()
+            received = PointCloud2_.deserialize(msg.serialize())
+            assert isinstance(received.data_, kind)
+            xyz2, rgb2 = decode_point_cloud2(received)
+            assert np.array_equal(xyz2, xyz) and np.array_equal(rgb2, rgb)
+    finally:
+        (fastpath.enable if was_enabled else fastpath.disable)()
 
 
 def test_decode_other_layouts_big_endian_and_padded() -> None:

@@ -28,7 +28,8 @@ def policy(qos: Qos, scope: str) -> object:
 
 def test_one_library_with_a_profile_per_data_flow(profiles: QosProfiles) -> None:
     assert sorted(profiles.names) == sorted(f"{LIBRARY}::{name}" for name in
-                                            ["Lidar", "HMI", *BEST_EFFORT_FLOWS, "Camera"])
+                                            ["Lidar", "LidarInterop", "HMI", *BEST_EFFORT_FLOWS, "Camera",
+                                                             "Shapes", "LidarView"])
 
 
 def test_lidar_reliable_asynchronous_with_deadlines(profiles: QosProfiles) -> None:
@@ -36,6 +37,14 @@ def test_lidar_reliable_asynchronous_with_deadlines(profiles: QosProfiles) -> No
     assert isinstance(policy(writer, "Reliability"), Policy.Reliability.Reliable)
     assert isinstance(policy(reader, "Reliability"), Policy.Reliability.Reliable)
     assert policy(writer, "LatencyBudget").budget > 0  # Cyclone's asynchronous write
+    assert policy(writer, "Deadline").deadline == 1 * SECOND
+    assert policy(reader, "Deadline").deadline == 2 * SECOND
+
+
+def test_lidar_interop_is_the_same_flow_with_a_synchronous_writer(profiles: QosProfiles) -> None:
+    writer, reader = profiles.writer_qos(LIBRARY, "LidarInterop"), profiles.reader_qos(LIBRARY, "LidarInterop")
+    assert isinstance(policy(writer, "Reliability"), Policy.Reliability.Reliable)
+    assert Policy.LatencyBudget not in writer  # matches readers with the default budget of 0 (RViz2, RTI apps)
     assert policy(writer, "Deadline").deadline == 1 * SECOND
     assert policy(reader, "Deadline").deadline == 2 * SECOND
 
