@@ -16,7 +16,6 @@ from cyclonedds.core import DDSException
 from automotive.app import Application, run
 from automotive.camera import (
     FrameWriter,
-    detach_listeners,
     frame_size,
     frame_type,
     tune_process_for_large_frames,
@@ -60,15 +59,12 @@ def body(app: Application) -> None:
     subscribers = SubscriberCount()
     # The pattern stream is generated once; each frame is a window of it, written without a copy.
     writer = FrameWriter(app.writer("Camera", data_type, "CameraImageData", hook=subscribers.hook), FramePattern(size))
-    try:
-        tune_process_for_large_frames()
-        app.ready()
-        app.log.info("camera %d: %s frames of %d bytes, %s", camera_id, data_type.__name__, size,
-                     f"one every {interval_ms:g} ms" if interval_ms else "as fast as flow control allows")
-        if subscribers.wait_for(app, wait_subscribers):
-            publish(app, writer, camera_id, interval_ms / 1000)
-    finally:
-        detach_listeners(writer.writer)
+    tune_process_for_large_frames()
+    app.ready()
+    app.log.info("camera %d: %s frames of %d bytes, %s", camera_id, data_type.__name__, size,
+                 f"one every {interval_ms:g} ms" if interval_ms else "as fast as flow control allows")
+    if subscribers.wait_for(app, wait_subscribers):
+        publish(app, writer, camera_id, interval_ms / 1000)
 
 
 def publish(app: Application, writer: FrameWriter, camera_id: int, interval_s: float) -> None:

@@ -23,7 +23,6 @@ from automotive.app import Application, run
 from automotive.camera import (
     Frame,
     FrameReader,
-    detach_listeners,
     frame_size,
     frame_type,
     tune_process_for_large_frames,
@@ -198,13 +197,10 @@ def body(app: Application) -> None:
     stats = CameraStats(size)
     waitset = app.waitset(frames.reader)
     waitset.attach(publisher_left)
-    try:
-        tune_process_for_large_frames()
-        app.log.info("viewing %s frames of %d bytes%s", data_type.__name__, size,
-                     ", until the publisher leaves" if exit_with_publisher else "")
-        view(app, frames, waitset, publisher_left, FramePattern(size), stats)
-    finally:
-        detach_listeners(frames.reader)
+    tune_process_for_large_frames()
+    app.log.info("viewing %s frames of %d bytes%s", data_type.__name__, size,
+                 ", until the publisher leaves" if exit_with_publisher else "")
+    view(app, frames, waitset, publisher_left, FramePattern(size), stats)
     stats.report_window(app.log, force=True)
     app.log.info("%s", stats.totals_line())
     if plot_path is not None and stats.total.samples:

@@ -81,18 +81,6 @@ def tune_process_for_large_frames() -> None:
     mallopt(_M_TRIM_THRESHOLD, _KEEP_HEAP_BYTES)
 
 
-def detach_listeners(*entities: Any) -> None:
-    """Remove the endpoints' listeners, waiting for a callback in progress to return.
-
-    Cyclone Python keeps only weak references to its entities and deletes an entity in ``__del__``. When an
-    application's endpoints go out of scope while a listener callback holds the last reference (a reader's
-    "unmatched" event as the publisher leaves, say), the entity is deleted from inside its own callback and the
-    process hangs. Calling this before the endpoints go out of scope makes the main thread the one that lets go.
-    """
-    for entity in entities:
-        entity.set_listener(None)
-
-
 def frame_size(data_type: type[Any]) -> int:
     """The image size in bytes of a frame type (the bound of its ``data`` array)."""
     return int(data_type.__annotations__["data"].__metadata__[0].length)

@@ -60,6 +60,10 @@ class Databus:
         self.subscriber = Subscriber(self.participant)
         self._topics: dict[str, Topic[Any]] = {}
         self._listeners: list[StatusListener] = []
+        # Strong references until close(): Cyclone Python deletes an entity when its last Python reference goes,
+        # and if that happens inside the entity's own listener callback (a reader's "unmatched" as a writer
+        # leaves), the process hangs. Holding them here makes close() the one place they are let go.
+        self._endpoints: list[DataWriter[Any] | DataReader[Any]] = []
 
     def topic(self, name: str, data_type: type[T]) -> Topic[T]:
         topic = self._topics.get(name)
@@ -80,17 +84,24 @@ class Databus:
                hook: EventHook | None = None) -> DataWriter[T]:
         qos = self.profiles.writer_qos(self.library, profile)
         topic = self.topic(topic_name, data_type)
-        return CheckedWriter(self.publisher, topic, qos=qos, listener=self._listener(topic_name, hook))
+        writer = CheckedWriter(self.publisher, topic, qos=qos, listener=self._listener(topic_name, hook))
+        self._endpoints.append(writer)
+        return writer
 
     def reader(self, topic_name: str, data_type: type[T], profile: str,
                hook: EventHook | None = None) -> DataReader[T]:
         qos = self.profiles.reader_qos(self.library, profile)
         topic = self.topic(topic_name, data_type)
-        return DataReader(self.subscriber, topic, qos=qos, listener=self._listener(topic_name, hook))
+        reader = DataReader(self.subscriber, topic, qos=qos, listener=self._listener(topic_name, hook))
+        self._endpoints.append(reader)
+        return reader
 
     def close(self) -> None:
         """Delete the participant and everything in it (Cyclone deletes children with their parent)."""
+        for endpoint in self._endpoints:
+            endpoint.set_listener(None)  # waits for a callback in progress; none starts after this
         self.participant.__del__()
+        self._endpoints.clear()
         self._topics.clear()
         self._listeners.clear()
         if self.domain is not None:
