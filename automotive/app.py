@@ -94,6 +94,9 @@ class Application:
         self.domain_id = props.get_int("config.domainId", 0, minimum=0, maximum=232)
         self.library = props.get_str("qos.Library", DEFAULT_LIBRARY)
         self.profiles = QosProfiles(props.get_path("qos.File", str(DEFAULT_QOS_FILE)))
+        # After this many seconds, endpoints that matched nothing are reported: the sign of a wrong peer list,
+        # domain id or QoS (0 turns the report off).
+        self.match_report_s = props.get_float("config.matchReport", 10.0, minimum=0)
         self.network = self._network_config()
         if self.network is None:
             log.info("network: CYCLONEDDS_URI from the environment")
@@ -146,6 +149,18 @@ class Application:
             where = ", ".join(f"'{key}' ({self.props.where(key)})" for key in unused)
             raise ConfigError(f"{self.props.source}: unknown key(s) for {self.name}: {where}")
         self._ready = True
+        if self.match_report_s > 0:
+            threading.Thread(target=self._report_unmatched, name="match-report", daemon=True).start()
+
+    def _report_unmatched(self) -> None:
+        if self.stop_event.wait(self.match_report_s):
+            return
+        unmatched = self.bus.unmatched()
+        for line in unmatched:
+            self.log.warning("%s after %g s", line, self.match_report_s)
+        if unmatched and len(unmatched) == len(self.bus.endpoints):
+            self.log.warning("no peer seen after %g s: nothing matched on any topic (check the peers, the "
+                             "interface, the domain id)", self.match_report_s)
 
     def tick(self) -> int:
         """Count one iteration of the application's work; stop once ``--count`` iterations are done."""

@@ -96,6 +96,21 @@ class Databus:
         self._endpoints.append(reader)
         return reader
 
+    @property
+    def endpoints(self) -> list[DataWriter[Any] | DataReader[Any]]:
+        return list(self._endpoints)
+
+    def unmatched(self) -> list[str]:
+        """A description of each endpoint that has matched nothing so far (no remote reader or writer)."""
+        lines = []
+        for endpoint in self._endpoints:
+            topic = endpoint.topic.get_name()
+            if isinstance(endpoint, DataWriter) and not endpoint.get_matched_subscriptions():
+                lines.append(f"[{topic}] writer: no reader matched")
+            elif isinstance(endpoint, DataReader) and not endpoint.get_matched_publications():
+                lines.append(f"[{topic}] reader: no writer matched")
+        return lines
+
     def close(self) -> None:
         """Delete the participant and everything in it (Cyclone deletes children with their parent)."""
         for endpoint in self._endpoints:

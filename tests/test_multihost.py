@@ -163,8 +163,9 @@ def test_wrong_peer_list_nothing_flows(hosts: TwoHosts) -> None:
     # Each host lists itself and an address where no host is: neither ever contacts the other.
     wrong_a, wrong_b = f"{ADDRESS_A},{SUBNET}.3", f"{ADDRESS_B},{SUBNET}.4"
     hmi = hosts.app(b, "hmi", "--ui", "console", peers=wrong_b)
-    avoidance = hosts.app(b, "collision_avoidance", "-D", "config.alertSize=1.0", peers=wrong_b)
-    platform = hosts.app(a, "vehicle_platform", peers=wrong_a)
+    report = ["-D", "config.matchReport=2"]  # endpoints that matched nothing are reported after 2 s
+    avoidance = hosts.app(b, "collision_avoidance", "-D", "config.alertSize=1.0", *report, peers=wrong_b)
+    platform = hosts.app(a, "vehicle_platform", *report, peers=wrong_a)
     fusion = hosts.app(a, "sensor_fusion", peers=wrong_a)
     hosts.app(a, "vision", peers=wrong_a)
 
@@ -183,6 +184,10 @@ def test_wrong_peer_list_nothing_flows(hosts: TwoHosts) -> None:
     assert platform.count(r"\[PlatformStatus\] writer matched") == 0, platform.output[-2000:]
     assert hmi.count(r"DRIVER ALERT: ") == 0
     assert platform.count(r"command \d+ stamped") == 0
+    # ... and the applications say so
+    avoidance.wait_for(r"\[SensorObjects\] reader: no writer matched after 2 s")
+    avoidance.wait_for(r"\[PlatformStatus\] reader: no writer matched after 2 s")
+    platform.wait_for(r"\[PlatformControl\] reader: no writer matched after 2 s")
 
 
 def decode_hmi_alert(line: str) -> int:

@@ -98,6 +98,12 @@ def test_count_and_clean_exit(apps, domain_id: int) -> None:  # type: ignore[no-
     assert "Traceback" not in hmi.output
 
 
+def test_an_application_says_when_it_sees_no_peer(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
+    hmi = apps.start("hmi", "--ui", "console", "--domain", str(domain_id), "-D", "config.matchReport=1")
+    hmi.wait_for(r"\[AlertTopic\] reader: no writer matched after 1 s")
+    hmi.wait_for(r"no peer seen after 1 s: nothing matched on any topic")
+
+
 @pytest.mark.parametrize("args,message", [
     (["-D", "config.domainId=abc"], r"^hmi: -D: config.domainId = 'abc' is not an integer$"),
     (["-D", "config.domainId=999"], r"^hmi: -D: config.domainId = 999 is out of range \(expected 0..232\)$"),
