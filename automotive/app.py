@@ -113,9 +113,10 @@ class Application:
         interface = self.props.get_str("config.interface", "")
         peers = self.props.get_list("config.peers", [])
         max_participants = self.props.get_int("config.maxParticipants", DEFAULT_MAX_PARTICIPANTS, minimum=1)
+        large_data = self.props.get_bool("config.largeData", False)
         if user_uri() is not None and not explicit:
             return None
-        return NetworkConfig.from_settings(network, interface, peers, max_participants, self.props.source)
+        return NetworkConfig.from_settings(network, interface, peers, max_participants, large_data, self.props.source)
 
     # -- endpoints ---------------------------------------------------------------------------------------------
     def topic_name(self, role: str, default: str) -> str:

@@ -76,6 +76,11 @@ def test_network_configurations() -> None:
     assert '<Peer address="10.0.0.2"/><Peer address="hostb"/>' in xml
     assert "<MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>" in xml
 
+    large = NetworkConfig.from_settings(large_data=True).cyclone_xml()
+    assert "<FragmentSize>62000B</FragmentSize>" in large and "<MaxMessageSize>63500B</MaxMessageSize>" in large
+    assert '<SocketReceiveBufferSize min="default" max="4MiB"/>' in large
+    assert "<FragmentSize>" not in loopback
+
     with pytest.raises(ConfigError, match="peer 'bad host!' is not a host name or IP address"):
         NetworkConfig.from_settings(peers=["bad host!"])
     with pytest.raises(ConfigError, match="network 'peers' needs a list of peers"):
