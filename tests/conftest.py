@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import itertools
 import os
+import shutil
+import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
@@ -38,3 +40,36 @@ def apps() -> Iterator[object]:
         yield runner
     finally:
         runner.stop_all()
+
+
+@pytest.fixture
+def bus(domain_id: int) -> Iterator[object]:
+    """A databus of the test process on the test's domain (loopback, the project's QoS profiles)."""
+    from dds_helpers import make_bus
+
+    databus = make_bus(domain_id)
+    try:
+        yield databus
+    finally:
+        databus.close()
+
+
+@pytest.fixture
+def virtual_display() -> Iterator[str]:
+    """A private X display (Xvfb) for window tests."""
+    xvfb = shutil.which("Xvfb")
+    if xvfb is None:
+        pytest.fail("Xvfb is not installed (scripts/setup installs it)")
+    read_fd, write_fd = os.pipe()
+    # -displayfd: Xvfb picks a free display number and writes it to the pipe once it accepts connections.
+    process = subprocess.Popen([xvfb, "-displayfd", str(write_fd), "-screen", "0", "800x600x24", "-nolisten", "tcp"],
+                               pass_fds=(write_fd,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(write_fd)
+    with os.fdopen(read_fd) as pipe:
+        number = pipe.readline().strip()
+    try:
+        assert number, "Xvfb did not start"
+        yield f":{number}"
+    finally:
+        process.terminate()
+        process.wait(timeout=10)

@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
-from collections.abc import Iterator
 from pathlib import Path
 
-import pytest
 from dds_helpers import make_bus, wait_until
 
 from automotive.types.Alerts import DriverAlerts
@@ -44,26 +41,6 @@ def test_late_joining_hmi_shows_the_last_alert(apps, domain_id: int) -> None:  #
     hmi.wait_for("DRIVER ALERT: Driver attention required")
     assert hmi.count("Parking collision") == 0
     bus.close()
-
-
-@pytest.fixture
-def virtual_display() -> Iterator[str]:
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        pytest.fail("Xvfb is not installed (scripts/setup installs it)")
-    read_fd, write_fd = os.pipe()
-    # -displayfd: Xvfb picks a free display number and writes it to the pipe once it accepts connections.
-    process = subprocess.Popen([xvfb, "-displayfd", str(write_fd), "-screen", "0", "800x600x24", "-nolisten", "tcp"],
-                               pass_fds=(write_fd,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(write_fd)
-    with os.fdopen(read_fd) as pipe:
-        number = pipe.readline().strip()
-    try:
-        assert number, "Xvfb did not start"
-        yield f":{number}"
-    finally:
-        process.terminate()
-        process.wait(timeout=10)
 
 
 def window_names(display: str) -> str:

@@ -8,10 +8,8 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import subprocess
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +17,7 @@ import pytest
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.util import duration
-from dds_helpers import make_bus, wait_until
+from dds_helpers import wait_until
 from lidar_helpers import Clouds, circle, colours_of, points_of, stamp_s
 from PIL import Image
 
@@ -33,15 +31,6 @@ from automotive.types.std_msgs.msg.dds_ import Header_
 
 BLUE, GREEN, RED, MAGENTA = (SHAPE_RGB[c] for c in ("BLUE", "GREEN", "RED", "MAGENTA"))
 DEFAULT_OBSERVER = np.array([0.0, 0.0, 1.0])
-
-
-@pytest.fixture
-def bus(domain_id: int) -> Iterator[Databus]:
-    bus = make_bus(domain_id)
-    try:
-        yield bus
-    finally:
-        bus.close()
 
 
 def domain_args(domain_id: int) -> list[str]:
@@ -215,26 +204,6 @@ def test_point_cloud2_of_the_running_lidar(apps, domain_id: int, bus: Databus) -
         assert colours_of(cloud) == {BACKGROUND_RGB, GROUND_RGB}
     assert [stamp_s(c) for c in received] == sorted(stamp_s(c) for c in received)
     assert len({c.data_ for c in received}) == 3  # every frame has fresh noise
-
-
-@pytest.fixture
-def virtual_display() -> Iterator[str]:
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        pytest.fail("Xvfb is not installed (scripts/setup installs it)")
-    read_fd, write_fd = os.pipe()
-    # -displayfd: Xvfb picks a free display number and writes it to the pipe once it accepts connections.
-    process = subprocess.Popen([xvfb, "-displayfd", str(write_fd), "-screen", "0", "800x600x24", "-nolisten", "tcp"],
-                               pass_fds=(write_fd,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(write_fd)
-    with os.fdopen(read_fd) as pipe:
-        number = pipe.readline().strip()
-    try:
-        assert number, "Xvfb did not start"
-        yield f":{number}"
-    finally:
-        process.terminate()
-        process.wait(timeout=10)
 
 
 def test_lidar_view_window_shows_live_clouds(apps, domain_id: int, bus: Databus,  # type: ignore[no-untyped-def]

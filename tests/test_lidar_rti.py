@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import re
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +19,7 @@ import pytest
 
 pytest.importorskip("rticonnextdds_connector")
 
-from dds_helpers import make_bus, wait_until  # noqa: E402
+from dds_helpers import wait_until  # noqa: E402
 from lidar_helpers import Clouds, circle, points_of, with_colour  # noqa: E402
 from rti_peer import RTI_XML, RtiPeer  # noqa: E402
 
@@ -58,15 +57,6 @@ def rti_xml(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = tmp_path_factory.mktemp("rti") / "automotive_rti_lidar.xml"
     path.write_text(text[:end] + EXTRA_PROFILES + text[end:])
     return path
-
-
-@pytest.fixture
-def bus(domain_id: int) -> Iterator[Databus]:
-    bus = make_bus(domain_id)
-    try:
-        yield bus
-    finally:
-        bus.close()
 
 
 def test_rti_shapes_demo_writer_draws_a_sphere_until_it_leaves(apps, domain_id: int,  # type: ignore[no-untyped-def]

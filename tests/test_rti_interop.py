@@ -7,7 +7,7 @@ tests/rti/automotive_rti.xml). Our side uses the project's own Databus, profiles
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import asdict
 from typing import Any, TypeVar
 
@@ -20,7 +20,7 @@ from cyclonedds.pub import DataWriter  # noqa: E402
 from cyclonedds.qos import Policy, Qos  # noqa: E402
 from cyclonedds.sub import DataReader  # noqa: E402
 from cyclonedds.util import duration  # noqa: E402
-from dds_helpers import make_bus, take_samples, wait_until  # noqa: E402
+from dds_helpers import take_samples, wait_until  # noqa: E402
 from rti_peer import RtiPeer  # noqa: E402
 
 from automotive.endpoints import Databus  # noqa: E402
@@ -49,15 +49,6 @@ def vision_as_dict(sample: VisionSensor) -> dict[str, Any]:
     return {"id": sample.id, "timestamp": {"s": sample.timestamp.s, "ns": sample.timestamp.ns}, "objects": [
         {"classification": o.classification.value, "position": list(o.position), "velocity": list(o.velocity),
          "size": list(o.size)} for o in sample.objects]}
-
-
-@pytest.fixture
-def bus(domain_id: int) -> Iterator[Databus]:
-    bus = make_bus(domain_id)
-    try:
-        yield bus
-    finally:
-        bus.close()
 
 
 def test_rti_shapes_writer_reaches_our_shape_reader(bus: Databus, domain_id: int) -> None:
