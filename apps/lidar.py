@@ -19,6 +19,7 @@ from cyclonedds.core import InstanceState
 from cyclonedds.sub import DataReader
 
 from automotive.app import Application, run
+from automotive.clock import now_seconds_nanoseconds
 from automotive.errors import ConfigError
 from automotive.pointcloud import FRAME_ID, LidarScene, ScanGrid
 from automotive.types.automotive import ShapeType
@@ -109,7 +110,7 @@ def body(app: Application) -> None:
     frames = 0  # since the last log line
     for frame in app.periodic(interval_ms / 1000):
         tracker.apply(take_all(circles))
-        sec, nanosec = divmod(time.time_ns(), 1_000_000_000)
+        sec, nanosec = now_seconds_nanoseconds()
         start = time.perf_counter()
         cloud = scene.point_cloud2(sec, nanosec, frame_id)
         rendered = time.perf_counter()

@@ -7,8 +7,14 @@ import time
 from automotive.types.Common import POSIXTimestamp
 
 
-def now_timestamp() -> POSIXTimestamp:
+def now_seconds_nanoseconds() -> tuple[int, int]:
+    """This host's wall clock as (seconds, nanoseconds) since the epoch, as DDS and ROS 2 stamps hold it."""
     seconds, nanoseconds = divmod(time.time_ns(), 1_000_000_000)
+    return seconds, nanoseconds
+
+
+def now_timestamp() -> POSIXTimestamp:
+    seconds, nanoseconds = now_seconds_nanoseconds()
     return POSIXTimestamp(s=seconds, ns=nanoseconds)
 
 
