@@ -17,7 +17,8 @@ from cyclonedds.idl.types import bounded_str, sequence
 
 from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_
 
-# (type, member) -> bound, for bounds of the original IDL that the generated code leaves out.
+# (type, member) -> bound, for bounds of the original IDL that the generated code leaves out. The one registry of
+# them: bounds.check and the octet fast path both read it. Change it with set_extra_bound.
 EXTRA_BOUNDS: dict[tuple[type, str], int] = {
     (PointCloud2_, "data_"): POINT_CLOUD_MAX_DATA,
 }
@@ -34,6 +35,17 @@ class _MemberCheck:
     element_type: type | None  # a struct whose own members need checking, else None
 
 
+def set_extra_bound(cls: type, member: str, bound: int) -> None:
+    """Add or change a bound the generated type cannot carry; with an IDL bound as well, the smaller one applies."""
+    EXTRA_BOUNDS[(cls, member)] = bound
+    _plan.cache_clear()
+
+
+def _smaller_bound(*candidates: int | None) -> int | None:
+    given = [bound for bound in candidates if bound]
+    return min(given) if given else None
+
+
 def type_name(cls: type) -> str:
     return getattr(cls, "__idl_typename__", cls.__name__).replace(".", "::")
 
@@ -45,7 +57,7 @@ def _plan(cls: type) -> tuple[_MemberCheck, ...]:
         bound = EXTRA_BOUNDS.get((cls, name))
         element: type | None = None
         if isinstance(hint, sequence):
-            bound = bound or hint.max_length
+            bound = _smaller_bound(bound, hint.max_length)
             subtype = hint.subtype
             if isinstance(subtype, type) and issubclass(subtype, IdlStruct) and _plan(subtype):
                 element = subtype

@@ -188,7 +188,6 @@ _FAST_MACHINES = (OctetSequenceMachine, OctetArrayMachine)
 
 _lock = threading.RLock()
 _enabled = False
-_extra_bounds: dict[tuple[type, str], int] = {}
 _original_build_machines: Callable[..., Any] = Builder.build_machines.__func__  # type: ignore[attr-defined]
 _original_serialize: Callable[..., bytes] = IDL.serialize
 
@@ -259,7 +258,7 @@ def _member_slots(machine: Machine) -> Iterator[tuple[str, Callable[[], Machine]
 def _rewrite_machine(cls: type, machine: Machine, convert: Convert) -> None:
     for name, get, put in _member_slots(machine):
         label = f"{_type_label(cls)}.{name}"
-        put(_convert(get(), convert, label, _extra_bounds.get((cls, name))))
+        put(_convert(get(), convert, label, bounds.EXTRA_BOUNDS.get((cls, name))))
 
 
 def _rewrite_type(cls: type, convert: Convert) -> None:
@@ -322,8 +321,6 @@ def enable() -> None:
     """
     global _enabled
     with _lock:
-        for (cls, member), bound in bounds.EXTRA_BOUNDS.items():
-            _extra_bounds.setdefault((cls, member), bound)
         if not _enabled:
             Builder.build_machines = classmethod(_build_machines)  # type: ignore[method-assign, assignment]
             IDL.serialize = _serialize  # type: ignore[method-assign]
@@ -365,7 +362,7 @@ def enforce_bound(cls: type, member: str, bound: int) -> None:
     if isinstance(bound, bool) or not isinstance(bound, int) or bound <= 0:
         raise ValueError(f"bound of {_type_label(cls)}.{member}: expected a positive int, got {bound!r}")
     with _lock:
-        _extra_bounds[(cls, member)] = bound
+        bounds.set_extra_bound(cls, member, bound)
         if _enabled:
             _rewrite_type(cls, _to_fast)
 

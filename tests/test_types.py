@@ -154,3 +154,18 @@ def test_registered_type_names_and_keys(domain_id: int, topic_name: str, data_ty
     assert declared_keys == keys
     assert data_type.__idl__.keyless == (not keys)  # populated by the Topic
     participant.__del__()
+
+
+def test_an_extra_bound_and_an_idl_bound_the_smaller_applies() -> None:
+    six = VisionSensor(id=1, timestamp=STAMP, objects=[vision_object(0)] * 6)
+    try:
+        bounds.set_extra_bound(VisionSensor, "objects", 5)
+        with pytest.raises(bounds.BoundError, match="holds 6 elements, over its IDL bound of 5"):
+            bounds.check(six)
+        bounds.set_extra_bound(VisionSensor, "objects", 50)  # larger than the IDL's 10: the IDL's stays
+        bounds.check(six)
+        with pytest.raises(bounds.BoundError, match="over its IDL bound of 10"):
+            bounds.check(OVER_BOUND["VisionSensor.objects"])
+    finally:
+        del bounds.EXTRA_BOUNDS[(VisionSensor, "objects")]
+        bounds._plan.cache_clear()
