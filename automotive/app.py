@@ -255,13 +255,3 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
         if app is not None:
             app.close()
             log.info("stopped")
-
-
-def main_entry(name: str, description: str, body: Callable[[Application], None],
-               add_arguments: ArgumentAdder | None = None) -> Callable[[], None]:
-    """A console-script entry point for an application."""
-
-    def entry() -> None:
-        sys.exit(run(name, description, body, None, add_arguments))
-
-    return entry

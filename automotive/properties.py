@@ -108,15 +108,8 @@ class Properties:
             self._values[key] = value.strip()
             self._sources[key] = source
 
-    def set_default(self, key: str, value: str) -> None:
-        self._values.setdefault(key, value)
-        self._sources.setdefault(key, "default")
-
     def __contains__(self, key: str) -> bool:
         return key in self._values
-
-    def keys(self) -> list[str]:
-        return list(self._values)
 
     def unused_keys(self) -> list[str]:
         return [key for key in self._values if key not in self._read]
