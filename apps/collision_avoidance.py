@@ -6,14 +6,21 @@ Data flow:  Sensor::SensorObjectList on SensorObjects  --+-->  Alerts::DriverAle
 An object taller than config.alertSize (size[1], metres; 2.0 by default) needs the driver's attention; when none is
 left after an alert, an all-clear alert is written. Every object list is answered with a platform command that follows
 the first object.
+
+Redundant mode (config.redundant=true): two instances run hot; readers follow the stronger live one. Each instance
+also reads the commands of the owner and numbers its own after them, so that at a failover the vehicle platform's
+sample_ids jump forward, never back. A new instance writes no command until it has seen the owner's (or, alone,
+JOIN_S after its first object list): a restarted primary takes over with the next number, without a gap.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 
 from automotive.app import Application, run
 from automotive.clock import now_timestamp
+from automotive.ownership import OwnerTracker
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, IndicatorStatusEnum
 from automotive.types.Platform import PlatformControl, PlatformStatus
@@ -21,6 +28,8 @@ from automotive.types.Sensor import SensorObjectList
 
 ALL_CLEAR = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False, backCollision=False,
                          parkingCollision=False, driverAttention=False)
+# Redundant mode: how long a new instance waits for the owner's commands before it numbers its own from 1.
+JOIN_S = 1.0
 ATTENTION = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False, backCollision=False,
                          parkingCollision=False, driverAttention=True)
 
@@ -47,15 +56,27 @@ def body(app: Application) -> None:
     status_reader = app.reader("PlatformStatus", PlatformStatus, "PlatformStatus")
     alert_writer = app.writer("Alerts", DriverAlerts, "AlertTopic")
     control_writer = app.writer("PlatformControl", PlatformControl, "PlatformControl")
+    objects_owner = OwnerTracker(objects_reader, app.log)
+    # Redundant mode: the owner's commands (our own once we are the owner), to number ours after them.
+    control_reader = app.reader("PlatformControl", PlatformControl, "PlatformControl") if app.redundant else None
+    joined = control_reader is None
+    join_deadline: float | None = None
 
     alert_active = False
     sample_id = 0
     status_count = 0
     for _ in app.wake_ups(app.waitset(objects_reader, status_reader)):
         status_count += len(status_reader.take(N=1000))  # read, and otherwise ignored, as in the original
+        if control_reader is not None:
+            seen = [c.sample_id for c in control_reader.take(N=1000) if isinstance(c, PlatformControl)]
+            if seen and not joined:
+                app.log.info("joined: the owner's last command is %d; ours follow it", max(seen))
+                joined = True
+            sample_id = max([sample_id, *seen])
         for objects in objects_reader.take(N=100):
             if not isinstance(objects, SensorObjectList):
                 continue
+            objects_owner.follow(objects)
             if needs_attention(objects, alert_size):
                 alert_writer.write(ATTENTION)
                 if not alert_active:
@@ -65,6 +86,13 @@ def body(app: Application) -> None:
                 alert_writer.write(ALL_CLEAR)
                 app.log.info("all clear: no object taller than %.1f m", alert_size)
                 alert_active = False
+            if not joined:
+                join_deadline = join_deadline or time.monotonic() + JOIN_S
+                if time.monotonic() < join_deadline:
+                    continue
+                app.log.info("joined: no other instance's command within %g s; ours start at %d", JOIN_S,
+                             sample_id + 1)
+                joined = True
             sample_id += 1
             command = command_for(objects, sample_id)
             control_writer.write(command)

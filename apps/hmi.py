@@ -5,6 +5,10 @@ Data flow:  Alerts::DriverAlerts on AlertTopic (transient local: a late HMI show
 A WaitSet, not a listener, delivers the alerts: acknowledging an alert may take the driver a while, and that must not
 block DDS's receive thread. The alert box is a window (SDL2 through pygame) when a display is available, or a clearly
 marked box on the console (--ui console|window|auto). Losing and regaining the alert writer's liveliness is reported.
+
+Redundant mode (config.redundant=true): the alerts come from the stronger live of two collision_avoidance instances;
+each change of owner is reported in one line, the source is lost only when no writer is alive, and an alert state is
+shown once however many writers repeat it.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from typing import Any, Protocol
 
 from automotive.app import Application, run
 from automotive.errors import ConfigError
+from automotive.ownership import OwnerTracker
 from automotive.types.Alerts import DriverAlerts
 
 ALERT_TEXTS = {
@@ -148,10 +153,12 @@ def body(app: Application) -> None:
     source_alive: list[bool] = []  # liveliness changes, appended by the listener thread, shown by the main loop
 
     def on_status(event: str, topic: str, status: Any) -> None:
+        # The source is lost when no alert writer is alive (a hot standby may still be), back when one is again.
         if event == "liveliness_changed" and (status.not_alive_count_change > 0 or status.alive_count_change > 0):
-            source_alive.append(status.not_alive_count_change <= 0)
+            source_alive.append(status.alive_count > 0)
 
     alerts = app.reader("Alerts", DriverAlerts, "AlertTopic", hook=on_status)
+    owner = OwnerTracker(alerts, app.log)
     ui = make_ui(app.args.ui)
     app.log.info("HMI: %s alert box, waiting for alerts", "window" if isinstance(ui, WindowUI) else "console")
 
@@ -162,15 +169,18 @@ def body(app: Application) -> None:
             ui.pump()
             while source_alive:
                 alive = source_alive.pop(0)
+                if alive != source_lost:  # no change: a writer came or went while another stayed alive
+                    continue
                 if not alive:
                     app.log.warning("alert source LOST: the alert writer's liveliness was lost")
-                elif source_lost:
+                else:
                     app.log.info("alert source back: the alert writer's liveliness was regained")
                 source_lost = not alive
                 ui.source_alive(alive)
             for alert in alerts.take(N=100):
                 if not isinstance(alert, DriverAlerts):
                     continue
+                owner.follow(alert)
                 texts = alert_texts(alert)
                 if texts != shown:  # the writer repeats an active alert; the driver sees each change once
                     if texts:

@@ -5,15 +5,21 @@ Data flow:  Platform::PlatformControl on PlatformControl  --+-->  Platform::Plat
 
 The status copies blinker and steering angle from the last command; speed, velocity, yaw rate and gas pedal come from
 the rows of the CSV file, wrapping around.
+
+Redundant mode (config.redundant=true): the commands come from the stronger live of two collision_avoidance instances;
+each change of owner is reported, and a command numbered at or below one already executed (stale) is ignored, until
+no command writer is alive any more: an instance that starts after that numbers its commands afresh.
 """
 
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 from automotive.app import Application, run
 from automotive.clock import format_timestamp, now_timestamp
 from automotive.csvdata import cycle_rows, load_platform_rows
+from automotive.ownership import OwnerTracker
 from automotive.types.Common import IndicatorStatusEnum
 from automotive.types.Platform import PlatformControl, PlatformStatus
 
@@ -21,16 +27,36 @@ from automotive.types.Platform import PlatformControl, PlatformStatus
 def body(app: Application) -> None:
     interval_s = app.props.get_int("config.pubInterval", 100, minimum=1) / 1000
     rows = load_platform_rows(app.props.get_path("dataFile"), app.log)
-    control_reader = app.reader("PlatformControl", PlatformControl, "PlatformControl")
+    writers_lost: list[bool] = []  # appended by the listener thread when no command writer is alive
+
+    def on_status(event: str, topic: str, status: Any) -> None:
+        if event == "liveliness_changed" and status.alive_count == 0 and (
+                status.not_alive_count_change > 0 or status.alive_count_change < 0):
+            writers_lost.append(True)
+
+    control_reader = app.reader("PlatformControl", PlatformControl, "PlatformControl", hook=on_status)
     status_writer = app.writer("PlatformStatus", PlatformStatus, "PlatformStatus")
+    owner = OwnerTracker(control_reader, app.log)
+    executed: int | None = None  # sample_id of the last command executed
     app.log.info("vehicle platform: %d rows, status every %.0f ms", len(rows), interval_s * 1000)
 
     steer_angle = 0.0
     blinker = IndicatorStatusEnum.INDICATOR_OFF
     for iteration, row in zip(app.periodic(interval_s), cycle_rows(rows)):
+        while writers_lost:
+            writers_lost.pop()
+            if owner.enabled and executed is not None:
+                app.log.warning("no command writer alive: the next one's numbering is accepted from where it starts")
+                executed = None
         for command in control_reader.take(N=1000):
             if not isinstance(command, PlatformControl):
                 continue
+            owner.follow(command)
+            if owner.enabled and executed is not None and command.sample_id <= executed:
+                app.log.warning("stale command %d from %s ignored: command %d was executed already",
+                                command.sample_id, owner.owner_name, executed)
+                continue
+            executed = command.sample_id
             app.log.info("command %d stamped %s: speed %.2f, steer %.2f, blinker %s", command.sample_id,
                          format_timestamp(command.timestamp), command.speed, command.vehicleSteerAngle,
                          IndicatorStatusEnum(command.blinkerStatus).name)

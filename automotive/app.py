@@ -48,6 +48,9 @@ PROPERTIES_DIR = PROJECT_ROOT / "properties"
 DEFAULT_QOS_FILE = PROJECT_ROOT / "qos" / "automotive_qos.xml"
 DEFAULT_LIBRARY = "AutomotiveLibrary"
 EXIT_BAD_INPUT = 2
+# Redundant mode: an endpoint whose QoS profile P has a companion P + REDUNDANT_SUFFIX in the library uses it.
+REDUNDANT_SUFFIX = "Redundant"
+DEFAULT_OWNERSHIP_STRENGTH = 10
 
 ArgumentAdder = Callable[[argparse.ArgumentParser], None]
 
@@ -94,6 +97,12 @@ class Application:
         self.domain_id = props.get_int("config.domainId", 0, minimum=0, maximum=232)
         self.library = props.get_str("qos.Library", DEFAULT_LIBRARY)
         self.profiles = QosProfiles(props.get_path("qos.File", str(DEFAULT_QOS_FILE)))
+        # Redundant mode (hot-standby sensor_fusion and collision_avoidance, exclusive ownership): opt-in, because
+        # exclusive endpoints do not match the shared ones of the default system and of other vendors' defaults.
+        self.redundant = props.get_bool("config.redundant", False)
+        # The name of this instance (two of an application run in redundant mode), given to the participant and to
+        # exclusive writers: readers name the owner they follow with it.
+        self.instance_name = props.get_str("config.instanceName", name)
         # After this many seconds, endpoints that matched nothing are reported: the sign of a wrong peer list,
         # domain id or QoS (0 turns the report off).
         self.match_report_s = props.get_float("config.matchReport", 10.0, minimum=0)
@@ -102,7 +111,7 @@ class Application:
             log.info("network: CYCLONEDDS_URI from the environment")
         else:
             log.info("network: %s", self.network.describe())
-        self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, name)
+        self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, self.instance_name)
         self.guard = GuardCondition(self.bus.participant)
         self._ready = False
         self.iterations = 0
@@ -123,11 +132,23 @@ class Application:
         return self.props.get_str(f"topic.{role}", default)
 
     def profile(self, role: str) -> str:
-        return self.props.get_str(f"qos.{role}.Profile", None) or self.props.get_str("qos.Profile", role)
+        """``qos.<role>.Profile`` (or ``qos.Profile``, or the role); in redundant mode its Redundant companion."""
+        profile = self.props.get_str(f"qos.{role}.Profile", None) or self.props.get_str("qos.Profile", role)
+        if self.redundant and self.profiles.has(self.library, profile + REDUNDANT_SUFFIX):
+            return profile + REDUNDANT_SUFFIX
+        return profile
 
     def writer(self, role: str, data_type: type[T], default_topic: str, hook: EventHook | None = None) -> DataWriter[T]:
-        """A writer of the topic ``topic.<role>`` with the QoS profile ``qos.<role>.Profile`` (or ``qos.Profile``)."""
-        return self.bus.writer(self.topic_name(role, default_topic), data_type, self.profile(role), hook)
+        """A writer of the topic ``topic.<role>`` with the QoS profile ``qos.<role>.Profile`` (or ``qos.Profile``).
+
+        A writer with exclusive ownership gets its strength from ``config.ownershipStrength``.
+        """
+        profile = self.profile(role)
+        strength = None
+        if self.profiles.exclusive_writer(self.library, profile):
+            strength = self.props.get_int("config.ownershipStrength", DEFAULT_OWNERSHIP_STRENGTH, minimum=0,
+                                          maximum=2**31 - 1)
+        return self.bus.writer(self.topic_name(role, default_topic), data_type, profile, hook, strength)
 
     def reader(self, role: str, data_type: type[T], default_topic: str, hook: EventHook | None = None) -> DataReader[T]:
         return self.bus.reader(self.topic_name(role, default_topic), data_type, self.profile(role), hook)

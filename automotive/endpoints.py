@@ -12,7 +12,7 @@ from typing import Any, TypeVar
 from cyclonedds.core import DDSException
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter, Publisher
-from cyclonedds.qos import Policy, Qos
+from cyclonedds.qos import DataWriterQos, Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
@@ -39,6 +39,7 @@ class Databus:
     def __init__(self, domain_id: int, profiles: QosProfiles, library: str, log: logging.Logger,
                  network: NetworkConfig | None = None, name: str = "automotive"):
         fastpath.enable()  # octet data as one block; before any entity is created
+        self.name = name
         self.domain_id = domain_id
         self.profiles = profiles
         self.library = library
@@ -75,14 +76,18 @@ class Databus:
                               f"and {data_type.__name__}")
         return topic
 
-    def _listener(self, topic_name: str, hook: EventHook | None) -> StatusListener:
-        listener = StatusListener(topic_name, self.log, hook)
+    def _listener(self, topic_name: str, hook: EventHook | None, exclusive: bool = False) -> StatusListener:
+        listener = StatusListener(topic_name, self.log, hook, exclusive)
         self._listeners.append(listener)  # Cyclone keeps only a C reference: keep the Python object alive
         return listener
 
     def writer(self, topic_name: str, data_type: type[T], profile: str,
-               hook: EventHook | None = None) -> DataWriter[T]:
+               hook: EventHook | None = None, strength: int | None = None) -> DataWriter[T]:
+        """A writer; ``strength`` is its ownership strength (EXCLUSIVE profiles), sent with the instance's name."""
         qos = self.profiles.writer_qos(self.library, profile)
+        if strength is not None:
+            # The entity name travels with the writer's discovery data: readers name the owner they follow.
+            qos = DataWriterQos(Policy.OwnershipStrength(strength), Policy.EntityName(self.name), base=qos)
         topic = self.topic(topic_name, data_type)
         writer = CheckedWriter(self.publisher, topic, qos=qos, listener=self._listener(topic_name, hook))
         self._endpoints.append(writer)
@@ -92,7 +97,8 @@ class Databus:
                hook: EventHook | None = None) -> DataReader[T]:
         qos = self.profiles.reader_qos(self.library, profile)
         topic = self.topic(topic_name, data_type)
-        reader = DataReader(self.subscriber, topic, qos=qos, listener=self._listener(topic_name, hook))
+        exclusive = Policy.Ownership.Exclusive in qos
+        reader = DataReader(self.subscriber, topic, qos=qos, listener=self._listener(topic_name, hook, exclusive))
         self._endpoints.append(reader)
         return reader
 

@@ -61,3 +61,10 @@ class QosProfiles:
     def reader_qos(self, library: str, profile: str) -> DataReaderQos:
         base = self._provider.get_datareader_qos(self.key(library, profile))
         return DataReaderQos(READER_REPRESENTATION, base=base)
+
+    def has(self, library: str, profile: str) -> bool:
+        return f"{library}::{profile}" in self.names
+
+    def exclusive_writer(self, library: str, profile: str) -> bool:
+        """True if the profile's writers have EXCLUSIVE ownership (and so need an ownership strength)."""
+        return Policy.Ownership.Exclusive in self.writer_qos(library, profile)

@@ -30,9 +30,13 @@ def policy_name(policy_id: int) -> str:
 class StatusListener(Listener):
     """Logs matched/unmatched, deadline missed, liveliness, incompatible QoS, sample lost and rejected events."""
 
-    def __init__(self, topic_name: str, log: logging.Logger, hook: EventHook | None = None):
+    def __init__(self, topic_name: str, log: logging.Logger, hook: EventHook | None = None, exclusive: bool = False):
         super().__init__()
         self.topic_name = topic_name
+        # Cyclone counts every sample an EXCLUSIVE reader drops because a stronger writer owns the instance as
+        # "sample lost": with a hot standby that is each of its samples, by design. Such readers report owner
+        # changes instead (automotive.ownership).
+        self.exclusive = exclusive
         self.log = log
         self.hook = hook
 
@@ -84,6 +88,8 @@ class StatusListener(Listener):
                      logging.WARNING)
 
     def on_sample_lost(self, reader: Any, status: Any) -> None:
+        if self.exclusive:
+            return
         self._report("sample_lost", status,
                      f"sample lost: {status.total_count_change} more (total {status.total_count})", logging.WARNING)
 
