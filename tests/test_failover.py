@@ -1,0 +1,155 @@
+"""Redundant mode: hot-standby collision_avoidance and sensor_fusion, exclusive ownership, one fault per test.
+
+Each test runs the system of scripts/launch --redundant as processes on a private loopback domain: vision every 100 ms,
+two sensor_fusion instances in event mode (strengths 20 and 10), two collision_avoidance instances (20 and 10), the
+vehicle platform and a console HMI; then injects a fault and waits on what the readers print. Across every fault the
+vehicle platform's executed command numbers only go up and the HMI shows each alert state once.
+"""
+
+from __future__ import annotations
+
+import re
+import signal
+from pathlib import Path
+
+from apprunner import AppProcess, AppRunner
+from test_system import scene
+
+PRIMARY, BACKUP = 20, 10
+OWNER_LINE = r"\[{topic}\] owner changed: {old} \(strength {old_strength}\) -> {new} \(strength {new_strength}\)"
+TIMEOUT = 40.0  # generous: seven Python processes on a loaded 2-core machine
+
+
+def owned_by(topic: str, name: str) -> str:
+    """The first owner line of a reader, or a change to this owner (another instance may have been first)."""
+    return rf"\[{topic}\] owner(: | changed: .* -> ){name} \(strength {BACKUP if name.endswith('-2') else PRIMARY}\)"
+
+
+def owner_changed(topic: str, old: str, new: str) -> str:
+    strengths = {name: BACKUP if name.endswith("-2") else PRIMARY for name in (old, new)}
+    return OWNER_LINE.format(topic=topic, old=old, old_strength=strengths[old], new=new, new_strength=strengths[new])
+
+
+class RedundantSystem:
+    def __init__(self, apps: AppRunner, domain_id: int, tmp_path: Path):
+        self.apps = apps
+        self.common = ["--domain", str(domain_id), "-D", "config.redundant=true"]
+        self.hmi = apps.start("hmi", "--ui", "console", *self.common)
+        self.platform = apps.start("vehicle_platform", *self.common)
+        self.avoidance = {name: self.start_instance("collision_avoidance", name) for name in
+                          ("collision_avoidance", "collision_avoidance-2")}
+        self.fusion = {name: self.start_instance("sensor_fusion", name, "-D", "config.mode=event") for name in
+                       ("sensor_fusion", "sensor_fusion-2")}
+        # An alert for 1 s every 4 s: the HMI has states to show across the faults.
+        data = scene(tmp_path / "scene.csv", rows=40, tall_rows=range(10, 20))
+        self.vision = apps.start("vision", *self.common, "-D", f"dataFile={data}")
+        self.platform.wait_for(owned_by("PlatformControl", "collision_avoidance"), TIMEOUT)
+        for avoidance in self.avoidance.values():
+            avoidance.wait_for(owned_by("SensorObjects", "sensor_fusion"), TIMEOUT)
+
+    def start_instance(self, module: str, name: str, *extra: str) -> AppProcess:
+        strength = BACKUP if name.endswith("-2") else PRIMARY
+        return self.apps.start(module, *self.common, "-D", f"config.instanceName={name}",
+                               "-D", f"config.ownershipStrength={strength}", *extra)
+
+    def restart(self, name: str) -> AppProcess:
+        module = name.removesuffix("-2")
+        extra = ("-D", "config.mode=event") if module == "sensor_fusion" else ()
+        process = self.start_instance(module, name, *extra)
+        (self.avoidance if module == "collision_avoidance" else self.fusion)[name] = process
+        return process
+
+    def commands_executed(self) -> int:
+        return self.platform.count(r"vehicle_platform: command \d+ stamped")
+
+    def wait_for_more_commands(self, count: int = 10) -> None:
+        self.platform.wait_for(r"vehicle_platform: command \d+ stamped", TIMEOUT, self.commands_executed() + count)
+
+    def check_consistent(self) -> None:
+        """The platform's executed numbers only go up; the HMI shows alternating states, each once."""
+        numbers = [int(n) for n in re.findall(r"vehicle_platform: command (\d+) stamped", self.platform.output)]
+        assert numbers, self.platform.output[-2000:]
+        assert all(a < b for a, b in zip(numbers, numbers[1:])), f"a command number went back: {numbers}"
+        shown = re.findall(r"hmi: (DRIVER ALERT|all clear)", self.hmi.output)
+        assert shown, self.hmi.output[-2000:]
+        assert all(a != b for a, b in zip(shown, shown[1:])), f"an alert state was shown twice in a row: {shown}"
+
+
+def test_killed_primary_collision_avoidance_fails_over_and_takes_over_again(apps, domain_id: int,  # type: ignore[no-untyped-def]
+                                                                           tmp_path: Path) -> None:
+    system = RedundantSystem(apps, domain_id, tmp_path)
+    system.hmi.wait_for(owned_by("AlertTopic", "collision_avoidance"), TIMEOUT)
+    system.wait_for_more_commands()
+    system.avoidance["collision_avoidance"].stop(signal.SIGKILL)
+    for reader, topic in ((system.platform, "PlatformControl"), (system.hmi, "AlertTopic")):
+        reader.wait_for(owner_changed(topic, "collision_avoidance", "collision_avoidance-2"), TIMEOUT)
+    system.wait_for_more_commands()
+    assert system.hmi.count("alert source LOST") == 0  # the standby was alive all along
+
+    # The primary comes back: it numbers its commands after the standby's and takes over at its first one.
+    restarted = system.restart("collision_avoidance")
+    restarted.wait_for(r"joined: the owner's last command is \d+", TIMEOUT)
+    line = system.platform.wait_for(owner_changed("PlatformControl", "collision_avoidance-2", "collision_avoidance"),
+                                    TIMEOUT)
+    gap_ms = float(re.search(r"(-?\d+) ms after", line).group(1))  # type: ignore[union-attr]
+    assert gap_ms < 1000, f"the restarted primary took over after a gap: {line}"
+    system.wait_for_more_commands()
+    system.hmi.wait_for(owner_changed("AlertTopic", "collision_avoidance-2", "collision_avoidance"), TIMEOUT)
+    system.check_consistent()
+
+
+def test_killed_primary_sensor_fusion_fails_over(apps, domain_id: int, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    system = RedundantSystem(apps, domain_id, tmp_path)
+    system.wait_for_more_commands()
+    changes = system.platform.count("owner changed")  # at start-up the standby may have been first
+    system.fusion["sensor_fusion"].stop(signal.SIGKILL)
+    for avoidance in system.avoidance.values():
+        avoidance.wait_for(owner_changed("SensorObjects", "sensor_fusion", "sensor_fusion-2"), TIMEOUT)
+    system.wait_for_more_commands()
+    # The decision-making primary is alive: the platform kept following it.
+    assert system.platform.count("owner changed") == changes, system.platform.output[-2000:]
+    system.check_consistent()
+
+
+def test_frozen_primary_collision_avoidance_loses_ownership_and_regains_it(apps, domain_id: int,  # type: ignore[no-untyped-def]
+                                                                          tmp_path: Path) -> None:
+    system = RedundantSystem(apps, domain_id, tmp_path)
+    system.wait_for_more_commands()
+    primary = system.avoidance["collision_avoidance"]
+    primary.process.send_signal(signal.SIGSTOP)  # frozen, not dead: longer than the 250 ms lease
+    try:
+        system.platform.wait_for(owner_changed("PlatformControl", "collision_avoidance", "collision_avoidance-2"),
+                                 TIMEOUT)
+        system.wait_for_more_commands(5)
+    finally:
+        primary.process.send_signal(signal.SIGCONT)
+    system.platform.wait_for(owner_changed("PlatformControl", "collision_avoidance-2", "collision_avoidance"), TIMEOUT)
+    system.wait_for_more_commands()
+    system.check_consistent()
+
+
+def test_both_collision_avoidance_instances_killed_then_one_back(apps, domain_id: int,  # type: ignore[no-untyped-def]
+                                                                 tmp_path: Path) -> None:
+    system = RedundantSystem(apps, domain_id, tmp_path)
+    system.hmi.wait_for(owned_by("AlertTopic", "collision_avoidance"), TIMEOUT)
+    system.wait_for_more_commands()
+    for instance in system.avoidance.values():
+        instance.stop(signal.SIGKILL)
+    # The loss is reported one lease after the last message. (No deadline miss follows: Cyclone checks deadlines on
+    # alive instances only, and an instance without a live writer is not alive.)
+    system.platform.wait_for(r"\[PlatformControl\] liveliness LOST of a writer \(0 alive", TIMEOUT)
+    system.platform.wait_for(r"no command writer alive", TIMEOUT)
+    system.hmi.wait_for(r"alert source LOST", TIMEOUT)
+    lost_at = system.commands_executed()
+    stale = system.platform.count("stale command")  # at start-up both instances may have numbered from 1
+
+    # The standby comes back alone: it numbers its commands afresh, and the platform follows it.
+    restarted = system.restart("collision_avoidance-2")
+    restarted.wait_for(r"joined: no other instance's command", TIMEOUT)
+    system.platform.wait_for(owner_changed("PlatformControl", "collision_avoidance", "collision_avoidance-2"),
+                             TIMEOUT)
+    system.platform.wait_for(r"vehicle_platform: command \d+ stamped", TIMEOUT, lost_at + 10)
+    system.hmi.wait_for(r"alert source back", TIMEOUT)
+    numbers = [int(n) for n in re.findall(r"vehicle_platform: command (\d+) stamped", system.platform.output)]
+    assert all(a < b for a, b in zip(numbers[lost_at:], numbers[lost_at + 1:])), numbers
+    assert system.platform.count("stale command") == stale, system.platform.output[-2000:]
