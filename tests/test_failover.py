@@ -8,6 +8,7 @@ vehicle platform's executed command numbers only go up and the HMI shows each al
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 from pathlib import Path
@@ -153,3 +154,20 @@ def test_both_collision_avoidance_instances_killed_then_one_back(apps, domain_id
     numbers = [int(n) for n in re.findall(r"vehicle_platform: command (\d+) stamped", system.platform.output)]
     assert all(a < b for a, b in zip(numbers[lost_at:], numbers[lost_at + 1:])), numbers
     assert system.platform.count("stale command") == stale, system.platform.output[-2000:]
+
+
+def test_launch_redundant_runs_primaries_and_standbys(apps, domain_id: int, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    from test_launcher import app_line, launch, started_pids
+
+    launcher = launch(apps, domain_id, tmp_path, "--redundant", "--except", "lidar,camera_pub,camera_sub")
+    pids = started_pids(launcher)
+    assert sorted(pids) == ["collision_avoidance", "collision_avoidance-2", "hmi", "sensor_fusion", "sensor_fusion-2",
+                            "vehicle_platform", "vision"]
+    assert "config.ownershipStrength=10" in (tmp_path / "collision_avoidance-2.log").read_text().splitlines()[0]
+    launcher.wait_for(app_line("vehicle_platform", owned_by("PlatformControl", "collision_avoidance")), TIMEOUT)
+    os.kill(pids["collision_avoidance"], signal.SIGKILL)
+    launcher.wait_for(r"collision_avoidance ended on its own .* killed by SIGKILL", TIMEOUT)
+    launcher.wait_for(app_line("vehicle_platform", owner_changed("PlatformControl", "collision_avoidance",
+                                                                 "collision_avoidance-2")), TIMEOUT)
+    launcher.process.send_signal(signal.SIGINT)
+    assert launcher.wait_exit(timeout=40) == 1  # one application did not end well: the killed primary
