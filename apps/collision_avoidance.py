@@ -9,14 +9,16 @@ the first object.
 
 Redundant mode (config.redundant=true): two instances run hot; readers follow the stronger live one. Each instance
 also reads the commands of the owner and numbers its own after them, so that at a failover the vehicle platform's
-sample_ids jump forward, never back. A new instance writes no command until it has seen the owner's (or, alone,
-JOIN_S after its first object list): a restarted primary takes over with the next number, without a gap.
+sample_ids jump forward, never back; a restarted primary takes over with the next number, without a gap (Commands).
 """
 
 from __future__ import annotations
 
 import sys
 import time
+
+from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Policy
 
 from automotive.app import Application, run
 from automotive.clock import now_timestamp
@@ -50,6 +52,63 @@ def command_for(objects: SensorObjectList, sample_id: int) -> PlatformControl:
     return command
 
 
+class Commands:
+    """Numbers the platform commands; in redundant mode after the owner's, and skipping stale object lists.
+
+    Redundant mode: the owner's commands (our own once we are the owner) are read back, and ours are numbered after
+    them. A new instance writes none until it has seen one (or, alone, JOIN_S after its first object list). An object
+    list older than the liveliness lease when taken is skipped: this instance was stalled (frozen) at least that long,
+    the other instance has answered it, and answering now would give the platform and the HMI a stale state. After
+    such a stall the instance steps down (unregisters: while it owns the commands, its own exclusive reader shows only
+    its own) and joins again.
+    """
+
+    def __init__(self, app: Application, writer: DataWriter[PlatformControl], redundant: bool):
+        self.log = app.log
+        self.writer = writer
+        self.reader = app.reader("PlatformControl", PlatformControl, "PlatformControl") if redundant else None
+        self.joined = self.reader is None
+        self.join_deadline: float | None = None
+        self.last_id = 0
+        self.max_age_ns = 0
+        if self.reader is not None:
+            self.max_age_ns = self.reader.get_qos()[Policy.Liveliness].lease_duration
+
+    def follow_owner(self) -> None:
+        """Take the owner's latest commands (redundant mode)."""
+        if self.reader is None:
+            return
+        seen = [command.sample_id for command in self.reader.take(N=1000) if isinstance(command, PlatformControl)]
+        if seen and not self.joined:
+            self.log.info("joined: the owner's last command is %d; ours follow it", max(seen))
+            self.joined = True
+        self.last_id = max([self.last_id, *seen])
+
+    def stale(self, objects: SensorObjectList) -> bool:
+        age_ns = time.time_ns() - objects.sample_info.source_timestamp
+        if not self.max_age_ns or age_ns <= self.max_age_ns:
+            return False
+        self.log.warning("object list of %.0f ms ago skipped: older than the %.0f ms lease (this instance was "
+                         "stalled; the other one answered it)", age_ns / 1e6, self.max_age_ns / 1e6)
+        if self.joined:
+            self.log.warning("stalled past the lease: stepping down until the owner's next command")
+            self.writer.unregister_instance(command_for(objects, self.last_id))
+            self.joined, self.join_deadline = False, None
+        return True
+
+    def next_id(self) -> int | None:
+        """The number of the next command, or None while a new instance waits to join."""
+        if not self.joined:
+            self.join_deadline = self.join_deadline or time.monotonic() + JOIN_S
+            if time.monotonic() < self.join_deadline:
+                return None
+            self.log.info("joined: no other instance's command within %g s; ours start at %d", JOIN_S,
+                          self.last_id + 1)
+            self.joined = True
+        self.last_id += 1
+        return self.last_id
+
+
 def body(app: Application) -> None:
     alert_size = app.props.get_float("config.alertSize", 2.0)
     objects_reader = app.reader("SensorObjects", SensorObjectList, "SensorObjects")
@@ -57,24 +116,15 @@ def body(app: Application) -> None:
     alert_writer = app.writer("Alerts", DriverAlerts, "AlertTopic")
     control_writer = app.writer("PlatformControl", PlatformControl, "PlatformControl")
     objects_owner = OwnerTracker(objects_reader, app.log)
-    # Redundant mode: the owner's commands (our own once we are the owner), to number ours after them.
-    control_reader = app.reader("PlatformControl", PlatformControl, "PlatformControl") if app.redundant else None
-    joined = control_reader is None
-    join_deadline: float | None = None
+    commands = Commands(app, control_writer, app.redundant)
 
     alert_active = False
-    sample_id = 0
     status_count = 0
     for _ in app.wake_ups(app.waitset(objects_reader, status_reader)):
         status_count += len(status_reader.take(N=1000))  # read, and otherwise ignored, as in the original
-        if control_reader is not None:
-            seen = [c.sample_id for c in control_reader.take(N=1000) if isinstance(c, PlatformControl)]
-            if seen and not joined:
-                app.log.info("joined: the owner's last command is %d; ours follow it", max(seen))
-                joined = True
-            sample_id = max([sample_id, *seen])
+        commands.follow_owner()
         for objects in objects_reader.take(N=100):
-            if not isinstance(objects, SensorObjectList):
+            if not isinstance(objects, SensorObjectList) or commands.stale(objects):
                 continue
             objects_owner.follow(objects)
             if needs_attention(objects, alert_size):
@@ -86,14 +136,9 @@ def body(app: Application) -> None:
                 alert_writer.write(ALL_CLEAR)
                 app.log.info("all clear: no object taller than %.1f m", alert_size)
                 alert_active = False
-            if not joined:
-                join_deadline = join_deadline or time.monotonic() + JOIN_S
-                if time.monotonic() < join_deadline:
-                    continue
-                app.log.info("joined: no other instance's command within %g s; ours start at %d", JOIN_S,
-                             sample_id + 1)
-                joined = True
-            sample_id += 1
+            sample_id = commands.next_id()
+            if sample_id is None:
+                continue
             command = command_for(objects, sample_id)
             control_writer.write(command)
             app.log.info("command %d: speed %.2f, steer %.2f, blinker %s (%d objects, %d status samples read)",

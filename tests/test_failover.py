@@ -124,7 +124,17 @@ def test_frozen_primary_collision_avoidance_loses_ownership_and_regains_it(apps,
         system.wait_for_more_commands(5)
     finally:
         primary.process.send_signal(signal.SIGCONT)
-    system.platform.wait_for(owner_changed("PlatformControl", "collision_avoidance-2", "collision_avoidance"), TIMEOUT)
+    # Back, it skips the object lists it missed (the standby answered them), steps down, numbers its commands after
+    # the standby's and takes over again.
+    primary.wait_for(r"skipped: older than the 250 ms lease", TIMEOUT)
+    primary.wait_for(r"stalled past the lease: stepping down", TIMEOUT)
+    lines = list(primary.lines)
+    stepped_down = next(index for index, line in enumerate(lines) if "stepping down" in line)
+    joined_before = sum(1 for line in lines[:stepped_down] if "joined: the owner's" in line)
+    primary.wait_for(r"joined: the owner's last command is \d+", TIMEOUT, count=joined_before + 1)
+    line = system.platform.wait_for(owner_changed("PlatformControl", "collision_avoidance-2", "collision_avoidance"),
+                                    TIMEOUT)
+    assert float(re.search(r"(-?\d+) ms after", line).group(1)) < 1000, line  # type: ignore[union-attr]
     system.wait_for_more_commands()
     system.check_consistent()
 
