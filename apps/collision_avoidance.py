@@ -10,6 +10,7 @@ the first object.
 Redundant mode (config.redundant=true): two instances run hot; readers follow the stronger live one. Each instance
 also reads the commands of the owner and numbers its own after them, so that at a failover the vehicle platform's
 sample_ids jump forward, never back; a restarted primary takes over with the next number, without a gap (Commands).
+Object lists older than the liveliness lease when taken are not answered: the instance was stalled (StallGuard).
 """
 
 from __future__ import annotations
@@ -18,11 +19,10 @@ import sys
 import time
 
 from cyclonedds.pub import DataWriter
-from cyclonedds.qos import Policy
 
 from automotive.app import Application, run
 from automotive.clock import now_timestamp
-from automotive.ownership import OwnerTracker
+from automotive.ownership import OwnerTracker, StallGuard
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, IndicatorStatusEnum
 from automotive.types.Platform import PlatformControl, PlatformStatus
@@ -53,14 +53,12 @@ def command_for(objects: SensorObjectList, sample_id: int) -> PlatformControl:
 
 
 class Commands:
-    """Numbers the platform commands; in redundant mode after the owner's, and skipping stale object lists.
+    """Numbers the platform commands; in redundant mode after the owner's.
 
     Redundant mode: the owner's commands (our own once we are the owner) are read back, and ours are numbered after
-    them. A new instance writes none until it has seen one (or, alone, JOIN_S after its first object list). An object
-    list older than the liveliness lease when taken is skipped: this instance was stalled (frozen) at least that long,
-    the other instance has answered it, and answering now would give the platform and the HMI a stale state. After
-    such a stall the instance steps down (unregisters: while it owns the commands, its own exclusive reader shows only
-    its own) and joins again.
+    them. A new instance writes none until it has seen one (or, alone, JOIN_S after its first object list). After a
+    stall past the lease the instance steps down (unregisters: while it owns the commands, its own exclusive reader
+    shows only its own) and joins again.
     """
 
     def __init__(self, app: Application, writer: DataWriter[PlatformControl], redundant: bool):
@@ -70,9 +68,6 @@ class Commands:
         self.joined = self.reader is None
         self.join_deadline: float | None = None
         self.last_id = 0
-        self.max_age_ns = 0
-        if self.reader is not None:
-            self.max_age_ns = self.reader.get_qos()[Policy.Liveliness].lease_duration
 
     def follow_owner(self) -> None:
         """Take the owner's latest commands (redundant mode)."""
@@ -84,17 +79,12 @@ class Commands:
             self.joined = True
         self.last_id = max([self.last_id, *seen])
 
-    def stale(self, objects: SensorObjectList) -> bool:
-        age_ns = time.time_ns() - objects.sample_info.source_timestamp
-        if not self.max_age_ns or age_ns <= self.max_age_ns:
-            return False
-        self.log.warning("object list of %.0f ms ago skipped: older than the %.0f ms lease (this instance was "
-                         "stalled; the other one answered it)", age_ns / 1e6, self.max_age_ns / 1e6)
-        if self.joined:
-            self.log.warning("stalled past the lease: stepping down until the owner's next command")
-            self.writer.unregister_instance(command_for(objects, self.last_id))
-            self.joined, self.join_deadline = False, None
-        return True
+    def step_down(self, objects: SensorObjectList) -> None:
+        if self.reader is None or not self.joined:
+            return
+        self.log.warning("stalled past the lease: stepping down until the owner's next command")
+        self.writer.unregister_instance(command_for(objects, self.last_id))
+        self.joined, self.join_deadline = False, None
 
     def next_id(self) -> int | None:
         """The number of the next command, or None while a new instance waits to join."""
@@ -117,15 +107,18 @@ def body(app: Application) -> None:
     control_writer = app.writer("PlatformControl", PlatformControl, "PlatformControl")
     objects_owner = OwnerTracker(objects_reader, app.log)
     commands = Commands(app, control_writer, app.redundant)
+    stall_guard = StallGuard(control_writer, app.log)  # redundant mode: no answers to lists missed while stalled
 
     alert_active = False
     status_count = 0
     for _ in app.wake_ups(app.waitset(objects_reader, status_reader)):
         status_count += len(status_reader.take(N=1000))  # read, and otherwise ignored, as in the original
         commands.follow_owner()
-        for objects in objects_reader.take(N=100):
-            if not isinstance(objects, SensorObjectList) or commands.stale(objects):
-                continue
+        taken = [objects for objects in objects_reader.take(N=100) if isinstance(objects, SensorObjectList)]
+        lists = stall_guard.fresh(taken, "object list(s)")
+        if stall_guard.stalled:
+            commands.step_down(taken[-1])
+        for objects in lists:
             objects_owner.follow(objects)
             if needs_attention(objects, alert_size):
                 alert_writer.write(ATTENTION)

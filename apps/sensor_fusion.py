@@ -6,6 +6,9 @@ Data flow:  Vision::VisionSensor on VisionTopic (all sensors)  --\\
 
 config.mode=periodic (the original) publishes every config.pubInterval ms the objects of the vision samples received
 since the last list; config.mode=event publishes as soon as vision data arrives, for low latency.
+
+Redundant mode (config.redundant=true): two instances run hot, with exclusive ownership; vision samples older than the
+liveliness lease when taken (the instance was stalled) are not fused.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from cyclonedds.sub import DataReader
 
 from automotive.app import Application, run
 from automotive.clock import now_timestamp
+from automotive.ownership import StallGuard
 from automotive.types.Common import ClassificationEnum
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE, RangeModeEnum, SensorObject, SensorObjectList
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
@@ -56,6 +60,7 @@ def body(app: Application) -> None:
     vision = app.reader("Vision", VisionSensor, "VisionTopic")
     lidar = app.reader("Lidar", PointCloud2_, "rt/LidarTopic")
     writer = app.writer("SensorObjects", SensorObjectList, "SensorObjects")
+    stall_guard = StallGuard(writer, app.log)  # redundant mode: no fusing of samples missed while stalled
     app.log.info("sensor fusion: %s mode, every %.0f ms", mode, interval_s * 1000)
 
     waitset = app.waitset(vision, lidar)
@@ -63,7 +68,8 @@ def body(app: Application) -> None:
     next_publish = time.monotonic() + interval_s
     for _ in app.wake_ups(waitset, timeout_s=interval_s if mode == "periodic" else 1.0):
         log_lidar_stamps(app, lidar)
-        pending.extend(s for s in vision.take(N=1000) if isinstance(s, VisionSensor))
+        pending.extend(stall_guard.fresh([s for s in vision.take(N=1000) if isinstance(s, VisionSensor)],
+                                         "vision sample(s)"))
         if mode == "periodic":
             if time.monotonic() < next_publish:
                 continue

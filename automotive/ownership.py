@@ -9,11 +9,15 @@ its strength.
 from __future__ import annotations
 
 import logging
-from typing import Any
+import time
+from typing import Any, TypeVar
 
 from cyclonedds.core import DDSException
+from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy
 from cyclonedds.sub import DataReader
+
+T = TypeVar("T")
 
 
 class OwnerTracker:
@@ -56,3 +60,32 @@ class OwnerTracker:
             self.owner, self.owner_name = info.publication_handle, name
         self.last_stamp_ns = info.source_timestamp
         return changed
+
+
+class StallGuard:
+    """Redundant mode: drops input that is older than this instance's liveliness lease when it is taken.
+
+    Such input means the instance was stalled (frozen) at least one lease: the readers have followed the other
+    instance meanwhile, and that one has answered it; answering it now would publish a stale state. The lease is the
+    one of the instance's exclusive writer; for any other writer (the default system) nothing is dropped.
+    """
+
+    def __init__(self, writer: DataWriter[Any], log: logging.Logger):
+        self.log = log
+        qos = writer.get_qos()
+        exclusive = Policy.Ownership.Exclusive in qos and Policy.Liveliness in qos
+        self.max_age_ns: int = qos[Policy.Liveliness].lease_duration if exclusive else 0
+        self.stalled = False  # the last call dropped something
+
+    def fresh(self, samples: list[T], what: str) -> list[T]:
+        """The samples taken within the lease; one line for those dropped."""
+        if not self.max_age_ns:
+            return samples
+        now = time.time_ns()
+        kept = [sample for sample in samples if now - sample.sample_info.source_timestamp <= self.max_age_ns]
+        dropped = len(samples) - len(kept)
+        self.stalled = dropped > 0
+        if dropped:
+            self.log.warning("skipped %d %s older than the %.0f ms lease: this instance was stalled and the other "
+                             "one answered them", dropped, what, self.max_age_ns / 1e6)
+        return kept

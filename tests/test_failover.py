@@ -126,7 +126,7 @@ def test_frozen_primary_collision_avoidance_loses_ownership_and_regains_it(apps,
         primary.process.send_signal(signal.SIGCONT)
     # Back, it skips the object lists it missed (the standby answered them), steps down, numbers its commands after
     # the standby's and takes over again.
-    primary.wait_for(r"skipped: older than the 250 ms lease", TIMEOUT)
+    primary.wait_for(r"skipped \d+ object list\(s\) older than the 250 ms lease", TIMEOUT)
     primary.wait_for(r"stalled past the lease: stepping down", TIMEOUT)
     lines = list(primary.lines)
     stepped_down = next(index for index, line in enumerate(lines) if "stepping down" in line)
@@ -135,6 +135,26 @@ def test_frozen_primary_collision_avoidance_loses_ownership_and_regains_it(apps,
     line = system.platform.wait_for(owner_changed("PlatformControl", "collision_avoidance-2", "collision_avoidance"),
                                     TIMEOUT)
     assert float(re.search(r"(-?\d+) ms after", line).group(1)) < 1000, line  # type: ignore[union-attr]
+    system.wait_for_more_commands()
+    system.check_consistent()
+
+
+def test_frozen_primary_sensor_fusion_skips_what_it_missed(apps, domain_id: int,  # type: ignore[no-untyped-def]
+                                                           tmp_path: Path) -> None:
+    system = RedundantSystem(apps, domain_id, tmp_path)
+    system.wait_for_more_commands()
+    primary = system.fusion["sensor_fusion"]
+    primary.process.send_signal(signal.SIGSTOP)
+    try:
+        for avoidance in system.avoidance.values():
+            avoidance.wait_for(owner_changed("SensorObjects", "sensor_fusion", "sensor_fusion-2"), TIMEOUT)
+        system.wait_for_more_commands(5)  # frozen well past the lease
+    finally:
+        primary.process.send_signal(signal.SIGCONT)
+    # Back, it does not fuse the vision samples it missed into a list of stale objects, and takes over again.
+    primary.wait_for(r"skipped \d+ vision sample\(s\) older than the 250 ms lease", TIMEOUT)
+    for avoidance in system.avoidance.values():
+        avoidance.wait_for(owner_changed("SensorObjects", "sensor_fusion-2", "sensor_fusion"), TIMEOUT)
     system.wait_for_more_commands()
     system.check_consistent()
 
