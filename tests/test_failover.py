@@ -13,8 +13,12 @@ import re
 import signal
 from pathlib import Path
 
+import pytest
 from apprunner import AppProcess, AppRunner
+from cyclonedds.qos import Policy
 from test_system import scene
+
+from automotive.qos import QosProfiles
 
 PRIMARY, BACKUP = 20, 10
 OWNER_LINE = r"\[{topic}\] owner changed: {old} \(strength {old_strength}\) -> {new} \(strength {new_strength}\)"
@@ -29,6 +33,23 @@ def owned_by(topic: str, name: str) -> str:
 def owner_changed(topic: str, old: str, new: str) -> str:
     strengths = {name: BACKUP if name.endswith("-2") else PRIMARY for name in (old, new)}
     return OWNER_LINE.format(topic=topic, old=old, old_strength=strengths[old], new=new, new_strength=strengths[new])
+
+
+@pytest.mark.parametrize("default", ["SensorFusion", "CollisionAvoidance", "HMI"])
+def test_redundant_profiles_are_exclusive_companions_of_shared_defaults(default: str) -> None:
+    profiles = QosProfiles(Path(__file__).resolve().parent.parent / "qos" / "automotive_qos.xml")
+    library = "AutomotiveLibrary"
+    for qos in (profiles.writer_qos(library, default), profiles.reader_qos(library, default)):
+        assert Policy.Ownership.Exclusive not in qos  # the default system: shared, as every default reader
+    writer = profiles.writer_qos(library, default + "Redundant")
+    reader = profiles.reader_qos(library, default + "Redundant")
+    for qos in (writer, reader):
+        assert Policy.Ownership.Exclusive in qos
+        assert isinstance(qos[Policy.Liveliness], Policy.Liveliness.Automatic)
+    # Request-offered: the reader accepts the writer's lease; the lease is short enough for a fast failover.
+    assert writer[Policy.Liveliness].lease_duration <= reader[Policy.Liveliness].lease_duration <= 500_000_000
+    assert profiles.exclusive_writer(library, default + "Redundant")
+    assert not profiles.exclusive_writer(library, default)
 
 
 class RedundantSystem:
@@ -201,3 +222,17 @@ def test_launch_redundant_runs_primaries_and_standbys(apps, domain_id: int, tmp_
                                                                  "collision_avoidance-2")), TIMEOUT)
     launcher.process.send_signal(signal.SIGINT)
     assert launcher.wait_exit(timeout=40) == 1  # one application did not end well: the killed primary
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["-D", "config.redundant=true", "-D", "config.ownershipStrength=-1"],
+     "config.ownershipStrength = -1 is out of range"),
+    (["-D", "config.redundant=maybe"], "config.redundant = 'maybe' is not a boolean"),
+    # Without redundant mode no writer is exclusive: a strength is a mistake, not silently ignored.
+    (["-D", "config.ownershipStrength=20"], "unknown key(s) for sensor_fusion: 'config.ownershipStrength'"),
+])
+def test_bad_redundant_settings_are_one_line_and_exit_code_2(apps, domain_id: int, args: list[str],  # type: ignore[no-untyped-def]
+                                                             message: str) -> None:
+    result = apps.run("sensor_fusion", "--domain", str(domain_id), "-D", "config.matchReport=0", *args)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr.count("\n") == 1 and message in result.stderr, result.stderr

@@ -15,6 +15,7 @@ QOS_FILE = ROOT / "qos" / "automotive_qos.xml"
 LIBRARY = "AutomotiveLibrary"
 SECOND = 1_000_000_000
 BEST_EFFORT_FLOWS = ["Vision", "Platform", "CollisionAvoidance", "SensorFusion"]
+REDUNDANT_PROFILES = ["SensorFusionRedundant", "CollisionAvoidanceRedundant", "HMIRedundant"]  # redundant mode only
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +30,7 @@ def policy(qos: Qos, scope: str) -> object:
 def test_one_library_with_a_profile_per_data_flow(profiles: QosProfiles) -> None:
     assert sorted(profiles.names) == sorted(f"{LIBRARY}::{name}" for name in
                                             ["Lidar", "LidarInterop", "HMI", *BEST_EFFORT_FLOWS, "Camera",
-                                                             "Shapes", "LidarView"])
+                                                             "Shapes", "LidarView", *REDUNDANT_PROFILES])
 
 
 def test_lidar_reliable_asynchronous_with_deadlines(profiles: QosProfiles) -> None:
