@@ -81,7 +81,7 @@ std::string json(float value)
         return "null";
     }
     char text[32];
-    std::snprintf(text, sizeof text, "%.9g", value);  // 9 digits: a float32 reads back exactly
+    std::snprintf(text, sizeof text, "%.17g", static_cast<double>(value));  // reads back as the same double
     return text;
 }
 
@@ -463,6 +463,18 @@ Topic* create_topic(DomainParticipant* participant, const std::string& name)
     return participant->create_topic(name, type.get_type_name(), TOPIC_QOS_DEFAULT);
 }
 
+std::string describe(const DataReaderQos& qos)
+{
+    std::string text = qos.reliability().kind == RELIABLE_RELIABILITY_QOS ? "reliable" : "best effort";
+    text += qos.durability().kind == VOLATILE_DURABILITY_QOS ? ", volatile" : ", durable";
+    if (qos.history().kind == KEEP_LAST_HISTORY_QOS) {
+        text += ", keep last " + std::to_string(qos.history().depth);
+    } else {
+        text += ", keep all";
+    }
+    return text;
+}
+
 int read(DomainParticipant* participant, const Options& options)
 {
     Subscriber* subscriber = participant->create_subscriber(SUBSCRIBER_QOS_DEFAULT);
@@ -483,7 +495,7 @@ int read(DomainParticipant* participant, const Options& options)
         reader.take_and_print = topic_types().at(name).make_printer(name);
         readers.push_back(std::move(reader));
     }
-    print_line("reading " + std::to_string(readers.size()) + " topic(s) with QoS " + options.qos);
+    print_line("reading " + std::to_string(readers.size()) + " topic(s) with QoS " + options.qos + ": " + describe(qos));
     while (!stop_requested) {
         bool done = options.count > 0;
         for (auto& reader : readers) {
