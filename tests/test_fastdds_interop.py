@@ -160,3 +160,11 @@ def test_fastdds_circle_appears_in_the_cloud_fastdds_reads(apps, domain_id: int)
         assert np.allclose(np.linalg.norm(orange - np.array([4.0, 0.0, 1.0]), axis=1), 1.0, atol=0.1)
     writer.stop()
     lidar.wait_for(r"shape ORANGE removed \((no writers left|disposed)\)", TIMEOUT)
+
+
+def test_our_shapes_publisher_reaches_a_fastdds_default_reader(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
+    peer = FastDdsPeer.read(apps, ["Circle"], domain_id, count=SAMPLES)
+    apps.start("shapes", "publish", "--color", "PURPLE", "--shapesize", "45", "--domain", str(domain_id))
+    shapes = peer.wait_samples("Circle", SAMPLES, TIMEOUT)
+    assert all(s["color"] == "PURPLE" and s["shapesize"] == 45 and 0 <= s["x"] <= 240 and 0 <= s["y"] <= 270
+               for s in shapes)

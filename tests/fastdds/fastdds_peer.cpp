@@ -103,6 +103,12 @@ std::string json(const std::string& value)
     return out + "\"";
 }
 
+template <size_t N>  // bounded strings (ShapeType's string<128> color)
+std::string json(const eprosima::fastrtps::fixed_string<N>& value)
+{
+    return json(std::string(value.c_str()));
+}
+
 template <typename E, std::enable_if_t<std::is_enum<E>::value, int> = 0>
 std::string json(E value)
 {
@@ -463,10 +469,14 @@ Topic* create_topic(DomainParticipant* participant, const std::string& name)
     return participant->create_topic(name, type.get_type_name(), TOPIC_QOS_DEFAULT);
 }
 
-std::string describe(const DataReaderQos& qos)
+template <typename Qos>
+std::string describe(const Qos& qos)
 {
     std::string text = qos.reliability().kind == RELIABLE_RELIABILITY_QOS ? "reliable" : "best effort";
-    text += qos.durability().kind == VOLATILE_DURABILITY_QOS ? ", volatile" : ", durable";
+    static const std::map<DurabilityQosPolicyKind, std::string> durability = {
+        {VOLATILE_DURABILITY_QOS, ", volatile"}, {TRANSIENT_LOCAL_DURABILITY_QOS, ", transient local"},
+        {TRANSIENT_DURABILITY_QOS, ", transient"}, {PERSISTENT_DURABILITY_QOS, ", persistent"}};
+    text += durability.at(qos.durability().kind);
     if (qos.history().kind == KEEP_LAST_HISTORY_QOS) {
         text += ", keep last " + std::to_string(qos.history().depth);
     } else {
@@ -517,14 +527,15 @@ int write(DomainParticipant* participant, const Options& options)
 {
     Publisher* publisher = participant->create_publisher(PUBLISHER_QOS_DEFAULT);
     MatchReporter listener("Circle");
-    DataWriter* writer = publisher->create_datawriter(create_topic(participant, "Circle"), DATAWRITER_QOS_DEFAULT,
-                                                      &listener);
+    DataWriterQos qos = publisher->get_default_datawriter_qos();
+    DataWriter* writer = publisher->create_datawriter(create_topic(participant, "Circle"), qos, &listener);
     ShapeType shape;
     shape.color(options.color);
     shape.x(options.x);
     shape.y(options.y);
     shape.shapesize(options.size);
-    print_line("writing " + json(shape) + " every " + std::to_string(options.period_ms) + " ms");
+    print_line("writing " + json(shape) + " every " + std::to_string(options.period_ms) + " ms with QoS default: " +
+               describe(qos));
     for (uint32_t written = 0; !stop_requested && (options.count == 0 || written < options.count); ++written) {
         writer->write(&shape);
         for (uint32_t waited = 0; waited < options.period_ms && !stop_requested; waited += 10) {
