@@ -8,10 +8,12 @@
 //       (zlib's CRC-32), plus "base64" with --data. Ends after N samples of every topic (0: until stopped).
 //   fastdds_peer write Circle --color C --x X --y Y --size S [--domain N] [--count N] [--period-ms MS]
 //       A Shapes Demo circle (ShapeType) with Fast DDS's default writer QoS, written every MS ms (100).
+//   Both: --participants N (participant ids probed on 127.0.0.1, 120; Fast DDS's default is 4),
+//         --socket-buffer BYTES (UDP send and receive buffers, 4 MiB; 0: the system's default).
 //
 // QoS "default" is Fast DDS's default DataReaderQos; "rviz2" is what RViz2 asks for a point cloud: reliable,
 // volatile, keep last 5. Traffic stays on loopback: UDPv4 on 127.0.0.1 only, shared memory off, no multicast,
-// initial peer 127.0.0.1 probed for participant ids 0..MAX_PARTICIPANTS-1. SIGINT/SIGTERM end it cleanly.
+// initial peer 127.0.0.1 probed for participant ids 0..N-1. SIGINT/SIGTERM end it cleanly.
 
 #include <atomic>
 #include <chrono>
@@ -360,19 +362,21 @@ const std::map<std::string, TopicType>& topic_types()
 
 // ---- participant -------------------------------------------------------------------------------------------------
 
-DomainParticipant* create_participant(uint32_t domain)
+DomainParticipant* create_participant(uint32_t domain, uint32_t participants, uint32_t socket_buffer)
 {
     DomainParticipantQos qos = PARTICIPANT_QOS_DEFAULT;
     qos.name("fastdds_peer");
     auto udp = std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>();
     udp->interfaceWhiteList.push_back("127.0.0.1");
-    udp->maxInitialPeersRange = MAX_PARTICIPANTS;
-    udp->sendBufferSize = SOCKET_BUFFER;
-    udp->receiveBufferSize = SOCKET_BUFFER;
+    udp->maxInitialPeersRange = participants;
+    if (socket_buffer > 0) {  // 0: Fast DDS's default (the system's)
+        udp->sendBufferSize = socket_buffer;
+        udp->receiveBufferSize = socket_buffer;
+        qos.transport().send_socket_buffer_size = socket_buffer;
+        qos.transport().listen_socket_buffer_size = socket_buffer;
+    }
     qos.transport().use_builtin_transports = false;  // no shared memory, no default UDP transport
     qos.transport().user_transports.push_back(udp);
-    qos.transport().send_socket_buffer_size = SOCKET_BUFFER;
-    qos.transport().listen_socket_buffer_size = SOCKET_BUFFER;
 
     // Port 0: Fast DDS fills in the well-known port of the participant id it gets. A unicast metatraffic locator
     // and no multicast one means no multicast at all.
@@ -402,6 +406,8 @@ struct Options
     std::string color = "BLUE";
     int32_t x = 120, y = 135, size = 30;
     uint32_t period_ms = 100;
+    uint32_t participants = MAX_PARTICIPANTS;
+    uint32_t socket_buffer = SOCKET_BUFFER;
 };
 
 uint32_t number(const std::string& option, const char* text)
@@ -418,7 +424,8 @@ Options parse(int argc, char** argv)
 {
     if (argc < 3 || (std::strcmp(argv[1], "read") != 0 && std::strcmp(argv[1], "write") != 0)) {
         usage_error("usage: fastdds_peer read TOPIC [TOPIC...] [--domain N] [--count N] [--qos default|rviz2] [--data]"
-                    " | write Circle --color C --x X --y Y --size S [--domain N] [--count N] [--period-ms MS]");
+                    " | write Circle --color C --x X --y Y --size S [--domain N] [--count N] [--period-ms MS];"
+                    " both: [--participants N] [--socket-buffer BYTES]");
     }
     Options options;
     options.command = argv[1];
@@ -448,6 +455,8 @@ Options parse(int argc, char** argv)
         else if (arg == "--y") options.y = static_cast<int32_t>(number(arg, value));
         else if (arg == "--size") options.size = static_cast<int32_t>(number(arg, value));
         else if (arg == "--period-ms") options.period_ms = number(arg, value);
+        else if (arg == "--participants") options.participants = number(arg, value);
+        else if (arg == "--socket-buffer") options.socket_buffer = number(arg, value);
         else usage_error("unknown option " + arg);
     }
     if (options.topics.empty()) {
@@ -553,7 +562,7 @@ int main(int argc, char** argv)
     Options options = parse(argc, argv);
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
-    DomainParticipant* participant = create_participant(options.domain);
+    DomainParticipant* participant = create_participant(options.domain, options.participants, options.socket_buffer);
     int code = options.command == "read" ? read(participant, options) : write(participant, options);
     DomainParticipantFactory::get_instance()->delete_participant(participant);
     return code;
