@@ -236,3 +236,27 @@ def test_bad_redundant_settings_are_one_line_and_exit_code_2(apps, domain_id: in
     result = apps.run("sensor_fusion", "--domain", str(domain_id), "-D", "config.matchReport=0", *args)
     assert result.returncode == 2, result.stdout + result.stderr
     assert result.stderr.count("\n") == 1 and message in result.stderr, result.stderr
+
+
+@pytest.mark.parametrize(("topic", "default"), [("SensorObjects", "SensorFusion"),
+                                                ("PlatformControl", "CollisionAvoidance"), ("AlertTopic", "HMI")])
+def test_outside_reader_follows_redundant_mode_with_exclusive_ownership_only(bus, topic: str,  # type: ignore[no-untyped-def]
+                                                                             default: str) -> None:
+    """What the README tells an outside system: the topic's default reader QoS plus EXCLUSIVE ownership."""
+    from cyclonedds.qos import DataReaderQos
+    from cyclonedds.sub import DataReader
+    from dds_helpers import wait_until
+
+    from automotive.types.Alerts import DriverAlerts
+    from automotive.types.Platform import PlatformControl
+    from automotive.types.Sensor import SensorObjectList
+
+    data_type = {"SensorObjects": SensorObjectList, "PlatformControl": PlatformControl, "AlertTopic": DriverAlerts}
+    bus.writer(topic, data_type[topic], default + "Redundant", strength=PRIMARY)
+    default_qos = bus.profiles.reader_qos(bus.library, default)
+    topic_entity = bus.topic(topic, data_type[topic])
+    exclusive_qos = DataReaderQos(Policy.Ownership.Exclusive, base=default_qos)
+    following = DataReader(bus.subscriber, topic_entity, qos=exclusive_qos)
+    shared = DataReader(bus.subscriber, topic_entity, qos=default_qos)
+    wait_until(lambda: len(following.get_matched_publications()) == 1, what="the exclusive reader's match")
+    assert shared.get_matched_publications() == []  # the default system's shared reader: incompatible OWNERSHIP
