@@ -214,13 +214,34 @@ class FrameWriter:
         finally:
             self._stream_view[start:end] = borrowed
 
+    @property
+    def serialized_length(self) -> int:
+        """Bytes of one serialized frame as this writer writes it (header, image, padding)."""
+        return self._padded_length
+
+    def build_pattern_frame(self, target: memoryview, id: int, seqnum: int) -> int:
+        """Build the pattern's frame for ``seqnum`` as a complete serialized sample in ``target`` (loaned shared
+        memory, ``serialized_length`` bytes): one copy of the image; return its timestamp (ns)."""
+        if self.pattern is None:
+            raise ValueError("this FrameWriter has no pattern")
+        start, end = self.codec.header_length, self.codec.header_length + self.codec.size
+        target[start:end] = self.pattern.frame(seqnum)
+        target[end:self._padded_length] = bytes(self._padded_length - end)
+        stamp = time.time_ns()
+        self.codec.pack_header(target, 0, id, *divmod(stamp, 1_000_000_000), seqnum)
+        return stamp
+
+    def write_serialized(self, view: memoryview) -> None:
+        """Write a complete serialized frame (as :meth:`build_pattern_frame` makes) on DDS."""
+        result = ddspy_write(self.writer._ref, view)
+        if result < 0:
+            raise DDSException(result, f"Occurred while writing a frame in {self.writer!r}")
+
     def _write_span(self, view: memoryview, start: int, id: int, seqnum: int) -> int:
         stamp = time.time_ns()
         sec, nanosec = divmod(stamp, 1_000_000_000)
         self.codec.pack_header(view, start, id, sec, nanosec, seqnum)
-        result = ddspy_write(self.writer._ref, view[start:start + self._padded_length])
-        if result < 0:
-            raise DDSException(result, f"Occurred while writing a frame in {self.writer!r}")
+        self.write_serialized(view[start:start + self._padded_length])
         return stamp
 
 
