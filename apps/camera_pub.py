@@ -81,6 +81,7 @@ def body(app: Application) -> None:
                     interval_ms / 1000)
     finally:
         if shared is not None:
+            app.log.info("shared memory: %d frames sent, %d written on DDS", shared.sent_shared, shared.sent_dds)
             shared.close()
         if memory is not None:
             memory.close()

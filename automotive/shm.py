@@ -84,6 +84,21 @@ def _policy(qos: Qos, policy: Any) -> Any:
         return None
 
 
+def _wait(listener: Any, seconds: float) -> list[Any]:
+    """The listener's events within ``seconds`` (the GIL is released meanwhile); none when a signal interrupts it
+    (the application's handler then runs and decides whether to stop)."""
+    try:
+        return list(listener.timed_wait(iox2.Duration.from_secs_f64(seconds)))
+    except iox2.ListenerWaitError:
+        return []
+
+
+def _dead_nodes(config: Any) -> list[Any]:
+    """The iceoryx2 nodes under ``config``'s prefix whose process is gone."""
+    states = iox2.Node.list(iox2.ServiceType.Ipc, config)
+    return [state._0 for state in states if isinstance(state, iox2.NodeState.Dead)]
+
+
 class SharedMemory:
     """One process's iceoryx2 node and the services of one topic; removes dead processes' files on start."""
 
@@ -92,12 +107,20 @@ class SharedMemory:
         config = iox2.config.default()
         try:
             config.global_cfg.prefix = iox2.FileName.new(prefix)
+            dead_before = len(_dead_nodes(config))
             self.node = (iox2.NodeBuilder.new().name(iox2.NodeName.new(app_name)).config(config)
                          # our own SIGINT/SIGTERM handling stops the application; iceoryx2 must not swallow them
                          .signal_handling_mode(iox2.SignalHandlingMode.Disabled).create(iox2.ServiceType.Ipc))
         except Exception as error:  # iceoryx2 raises its own exception types, one per failure
             raise ConfigError(f"shared memory (prefix '{prefix}'): iceoryx2 cannot create a node ({error!r})") from None
-        self.stale_removed = self._remove_stale(config)
+        # Creating a node removes what dead processes left (a SIGKILLed process cannot clean up); whatever it
+        # could not remove at once is tried again here.
+        for node in _dead_nodes(config):
+            try:
+                node.try_remove_stale_resources()
+            except Exception as error:  # another process may be cleaning the same node right now
+                _log.debug("stale node not removed: %r", error)
+        self.stale_removed = max(0, dead_before - len(_dead_nodes(config)))
         name = iox2.ServiceName.new(self.name)
         self.frames = (self.node.service_builder(name).publish_subscribe(iox2.Slice[ctypes.c_uint8])
                        .max_publishers(2).max_subscribers(MAX_SUBSCRIBERS).subscriber_max_buffer_size(MAX_DEPTH)
@@ -106,17 +129,6 @@ class SharedMemory:
         self.events = self.node.service_builder(name).event().event_id_max_value(LEAVING).open_or_create()
         consumed = iox2.ServiceName.new(self.name + "/consumed")
         self.consumed = self.node.service_builder(consumed).event().event_id_max_value(ACK_IDS - 1).open_or_create()
-
-    def _remove_stale(self, config: Any) -> int:
-        """Remove what dead processes left under our prefix (iceoryx2 cannot tell a SIGKILLed process's files)."""
-        removed = 0
-        for state in iox2.Node.list(iox2.ServiceType.Ipc, config):
-            if isinstance(state, iox2.NodeState.Dead):
-                try:
-                    removed += bool(state._0.try_remove_stale_resources())
-                except Exception as error:  # another process may be cleaning the same node right now
-                    _log.debug("stale node not removed: %r", error)
-        return removed
 
     @property
     def subscribers(self) -> int:
@@ -149,7 +161,8 @@ class SharedFrameWriter:
         self.notifier = memory.events.notifier_builder().create()
         self.acks = memory.consumed.listener_builder().create()
         self._pending: dict[int, int] = {}  # seqnum -> subscribers that have not consumed it yet
-        self.dropped_waits = 0
+        self.sent_shared = 0  # frames sent through shared memory
+        self.sent_dds = 0  # frames written on DDS (a DDS reader was matched)
 
     def count_subscribers(self) -> int:
         return self.memory.subscribers
@@ -158,7 +171,10 @@ class SharedFrameWriter:
         """Publish the pattern's frame ``seqnum`` to every subscriber of either kind; return its timestamp (ns)."""
         if not self.memory.subscribers:
             self._pending.clear()
-            return self.dds.write_pattern(id, seqnum) if self.dds_readers() else time.time_ns()
+            if not self.dds_readers():
+                return time.time_ns()
+            self.sent_dds += 1
+            return self.dds.write_pattern(id, seqnum)
         if self.reliable:
             self._wait_for_room()
         sample = self.publisher.loan_slice_uninit(self.length)
@@ -168,9 +184,11 @@ class SharedFrameWriter:
             stamp = self.dds.build_pattern_frame(view, id, seqnum)
             if self.dds_readers():
                 self.dds.write_serialized(view)
+                self.sent_dds += 1
         finally:
             view.release()
         receivers = sample.assume_init().send()
+        self.sent_shared += 1
         if receivers:
             self._pending[seqnum % ACK_IDS] = receivers
         self.notifier.notify_with_custom_event_id(iox2.EventId.new(FRAME_SENT))
@@ -185,11 +203,10 @@ class SharedFrameWriter:
             if remaining <= 0:
                 oldest = next(iter(self._pending))
                 del self._pending[oldest]
-                self.dropped_waits += 1
                 _log.warning("a shared-memory subscriber did not consume a frame within %g s", self.max_blocking_s)
                 deadline = time.monotonic() + self.max_blocking_s
                 continue
-            self._collect(self.acks.timed_wait(iox2.Duration.from_secs_f64(min(remaining, WAIT_SLICE_S))))
+            self._collect(_wait(self.acks, min(remaining, WAIT_SLICE_S)))
 
     def _collect(self, activations: list[Any]) -> None:
         for activation in activations:
@@ -227,7 +244,7 @@ class SharedFrameReader:
             leaving = False
             waited = 0.0
             while running() and waited < timeout_s:
-                activations = self.listener.timed_wait(iox2.Duration.from_secs_f64(WAIT_SLICE_S))
+                activations = _wait(self.listener, WAIT_SLICE_S)
                 if activations:
                     leaving = any(activation.id.as_value == LEAVING for activation in activations)
                     break

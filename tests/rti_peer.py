@@ -9,7 +9,8 @@ the test's domain holding only the writers and readers the test asks for, so mat
         peer.write("Vision", {"id": 1, "timestamp": {"s": 1, "ns": 2}, "objects": []})
         alerts = peer.take_until("Alerts", 1)           # samples as dicts, bounded wait
 
-Endpoint names (see ENDPOINTS): Circle, Lidar, Alerts, Vision, PlatformControl, PlatformStatus, SensorObjects.
+Endpoint names (see ENDPOINTS): Circle, Lidar, Alerts, Vision, PlatformControl, PlatformStatus, SensorObjects,
+Camera64KiB.
 RTI stays on loopback (UDPv4 only, no multicast, initial peer 127.0.0.1): see the Loopback QoS profile.
 """
 
@@ -51,6 +52,7 @@ ENDPOINTS: dict[str, Endpoint] = {
     "PlatformControl": Endpoint("PlatformControl", "Writer", "BestEffortReader"),
     "PlatformStatus": Endpoint("PlatformStatus", "Writer", "BestEffortReader"),
     "SensorObjects": Endpoint("SensorObjects", "Writer", "BestEffortReader"),
+    "Camera64KiB": Endpoint("CameraImageData_64KiB", "Writer", "ReliableReader"),
 }
 
 # Each peer gets its own participant library name: RTI keeps XML definitions per process.
