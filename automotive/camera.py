@@ -314,6 +314,25 @@ class TakenFrames:
             release()
 
 
+def release_views(frames: list[Frame], views: list[memoryview], arrays: list[ctypes.Array[ctypes.c_char]]) -> None:
+    """Release the views of lent buffers (``arrays``) before the buffers go back to their owner.
+
+    Every view of a lent buffer (a memoryview, a numpy array made from one) keeps its ctypes array alive. With ours
+    released, the list, the comprehension's variable and getrefcount's argument must be the only references left;
+    otherwise something still reads the sample, and giving it back would let that read freed (or rewritten) memory:
+    keep it (a leak) and say so.
+    """
+    for frame in frames:
+        frame.data.release()
+    for view in views:
+        view.release()
+    views.clear()
+    if any(count > 3 for count in [sys.getrefcount(array) for array in arrays]):
+        raise RuntimeError("a taken frame's data is still in use after its 'with' block; copy it first "
+                           "(bytes(frame.data)) to keep it")
+    arrays.clear()
+
+
 class FrameReader:
     """Takes frames from a DataReader of a frame type, without deserializing the image (and, where Cyclone's C
     library lends the received bytes, without copying them)."""
@@ -361,19 +380,7 @@ class FrameReader:
     def _give_back(self, frames: list[Frame], views: list[memoryview], arrays: list[ctypes.Array[ctypes.c_char]],
                    lent: list[tuple[int, _IoVec]], samples: list[int]) -> None:
         assert self._access is not None
-        for frame in frames:
-            frame.data.release()
-        for view in views:
-            view.release()
-        views.clear()
-        # Every view of a lent buffer (a memoryview, a numpy array made from one) keeps its ctypes array alive.
-        # With ours released, the list, the comprehension's variable and getrefcount's argument must be the only
-        # references left; otherwise something still reads the sample, and giving it back to Cyclone would let
-        # that read freed memory: keep it (a leak) and say so.
-        if any(count > 3 for count in [sys.getrefcount(array) for array in arrays]):
-            raise RuntimeError("a taken frame's data is still in use after its 'with' block; copy it first "
-                               "(bytes(frame.data)) to keep it")
-        arrays.clear()
+        release_views(frames, views, arrays)
         for pointer, iov in lent:
             self._access.to_ser_unref(pointer, ctypes.byref(iov))
         for pointer in samples:

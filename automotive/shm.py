@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import ctypes
 import logging
-import sys
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -34,7 +33,7 @@ from typing import Any
 import iceoryx2 as iox2
 from cyclonedds.qos import Policy, Qos
 
-from automotive.camera import Frame, FrameCodec, FrameWriter, TakenFrames
+from automotive.camera import Frame, FrameCodec, FrameWriter, TakenFrames, release_views
 from automotive.errors import ConfigError
 from automotive.properties import Properties
 
@@ -278,17 +277,7 @@ class SharedFrameReader:
 
     def _release(self, frames: list[Frame], views: list[memoryview], arrays: list[ctypes.Array[ctypes.c_char]],
                  samples: list[Any]) -> None:
-        for frame in frames:
-            frame.data.release()
-        for view in views:
-            view.release()
-        views.clear()
-        # A view made from ours (numpy, a memoryview slice) keeps its ctypes array alive: then the sample must not go
-        # back to the publisher, who would overwrite it under the reader. Keep it (a leak) and say so.
-        if any(count > 3 for count in [sys.getrefcount(array) for array in arrays]):
-            raise RuntimeError("a shared-memory frame's data is still in use after its 'with' block; copy it first "
-                               "(bytes(frame.data)) to keep it")
-        arrays.clear()
+        release_views(frames, views, arrays)  # refuses while a view is still held: the publisher would reuse it
         for index, sample in enumerate(samples):
             sample.delete()
             if index < len(frames):  # a consumed frame: the publisher's flow control counts it

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from apprunner import AppProcess
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
@@ -152,13 +153,19 @@ def mapped_file(address: int) -> str:
     return ""
 
 
+def flowing_pair(apps, args: list[str]) -> tuple[AppProcess, AppProcess]:  # type: ignore[no-untyped-def]
+    """camera_sub, then camera_pub (64 KiB frames, 50 a second, until stopped), once frames arrive."""
+    sub = apps.start("camera_sub", *args)
+    sub.wait_for("through shared memory", timeout=TIMEOUT)
+    pub = apps.start("camera_pub", *args, "-D", "config.pubInterval=20")
+    sub.wait_for(r"samples=\d+ size=65536", timeout=TIMEOUT)
+    return sub, pub
+
+
 def test_a_sigkilled_publisher_restarted_is_picked_up(apps, domain_id: int,  # type: ignore[no-untyped-def]
                                                      prefix: str) -> None:
     args = shm_args(domain_id, prefix, "-D", "config.imageSize=64KiB")
-    sub = apps.start("camera_sub", *args)
-    sub.wait_for("through shared memory", timeout=TIMEOUT)
-    first = apps.start("camera_pub", *args, "-D", "config.pubInterval=20")
-    sub.wait_for(r"samples=\d+ size=65536", timeout=TIMEOUT)
+    sub, first = flowing_pair(apps, args)
     first.stop(signal.SIGKILL)
     second = apps.start("camera_pub", *args, "-D", "config.pubInterval=20")
     second.wait_for(r"shared memory: removed the files of [1-9]\d* dead process", timeout=TIMEOUT)
@@ -186,10 +193,7 @@ def test_a_clean_stop_leaves_nothing_in_dev_shm(apps, domain_id: int, prefix: st
 def test_stale_files_of_dead_processes_are_removed_on_start(apps, domain_id: int,  # type: ignore[no-untyped-def]
                                                            prefix: str) -> None:
     args = shm_args(domain_id, prefix, "-D", "config.imageSize=64KiB")
-    sub = apps.start("camera_sub", *args)
-    sub.wait_for("through shared memory", timeout=TIMEOUT)
-    pub = apps.start("camera_pub", *args, "-D", "config.pubInterval=20")
-    sub.wait_for(r"samples=\d+ size=65536", timeout=TIMEOUT)
+    sub, pub = flowing_pair(apps, args)
     pub.stop(signal.SIGKILL)
     sub.stop(signal.SIGKILL)
     stale = files_of(prefix)
