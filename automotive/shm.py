@@ -28,6 +28,7 @@ import ctypes
 import logging
 import time
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import iceoryx2 as iox2
@@ -83,6 +84,15 @@ def _policy(qos: Qos, policy: Any) -> Any:
         return None
 
 
+@contextmanager
+def _refused(what: str) -> Iterator[None]:
+    """iceoryx2's refusals (too many ports, a service of the same name with other settings) as one clear line."""
+    try:
+        yield
+    except Exception as error:  # iceoryx2 raises one exception type per failure, all plain Exceptions
+        raise ConfigError(f"{what}: iceoryx2 refused ({error!r})") from None
+
+
 def _wait(listener: Any, seconds: float) -> list[Any]:
     """The listener's events within ``seconds`` (the GIL is released meanwhile); none when a signal interrupts it
     (the application's handler then runs and decides whether to stop)."""
@@ -120,6 +130,10 @@ class SharedMemory:
             except Exception as error:  # another process may be cleaning the same node right now
                 _log.debug("stale node not removed: %r", error)
         self.stale_removed = max(0, dead_before - len(_dead_nodes(config)))
+        with _refused(f"shared memory service '{self.name}'"):
+            self._open_services()
+
+    def _open_services(self) -> None:
         name = iox2.ServiceName.new(self.name)
         self.frames = (self.node.service_builder(name).publish_subscribe(iox2.Slice[ctypes.c_uint8])
                        .max_publishers(2).max_subscribers(MAX_SUBSCRIBERS).subscriber_max_buffer_size(MAX_DEPTH)
@@ -154,11 +168,12 @@ class SharedFrameWriter:
         self.running = running
         self.reliable, self.window, self.max_blocking_s = queue_settings(writer_qos)
         self.length = dds.serialized_length
-        self.publisher = (memory.frames.publisher_builder().initial_max_slice_len(self.length)
-                          .allocation_strategy(iox2.AllocationStrategy.Static)
-                          .backpressure_strategy(iox2.BackpressureStrategy.DiscardData).create())
-        self.notifier = memory.events.notifier_builder().create()
-        self.acks = memory.consumed.listener_builder().create()
+        with _refused(f"shared memory service '{memory.name}': a publisher (at most 2)"):
+            self.publisher = (memory.frames.publisher_builder().initial_max_slice_len(self.length)
+                              .allocation_strategy(iox2.AllocationStrategy.Static)
+                              .backpressure_strategy(iox2.BackpressureStrategy.DiscardData).create())
+            self.notifier = memory.events.notifier_builder().create()
+            self.acks = memory.consumed.listener_builder().create()
         self._pending: dict[int, int] = {}  # seqnum -> subscribers that have not consumed it yet
         self.sent_shared = 0  # frames sent through shared memory
         self.sent_dds = 0  # frames written on DDS (a DDS reader was matched)
@@ -232,9 +247,10 @@ class SharedFrameReader:
         self.memory = memory
         self.codec = FrameCodec(data_type)
         _, self.depth, _ = queue_settings(reader_qos)
-        self.subscriber = memory.frames.subscriber_builder().buffer_size(self.depth).create()
-        self.listener = memory.events.listener_builder().create()
-        self.notifier = memory.consumed.notifier_builder().create()
+        with _refused(f"shared memory service '{memory.name}': a subscriber (at most {MAX_SUBSCRIBERS})"):
+            self.subscriber = memory.frames.subscriber_builder().buffer_size(self.depth).create()
+            self.listener = memory.events.listener_builder().create()
+            self.notifier = memory.consumed.notifier_builder().create()
         self.publishers_seen = 0
 
     def wake_ups(self, running: Callable[[], bool], timeout_s: float = 1.0) -> Iterator[bool]:
