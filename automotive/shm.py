@@ -209,10 +209,13 @@ class SharedFrameWriter:
         return stamp
 
     def _wait_for_room(self) -> None:
-        """Until fewer than ``window`` frames are unconsumed; a subscriber silent for max_blocking_time loses one."""
+        """With ``window`` frames unconsumed, wait until half of them are (one wake-up for several frames, not one
+        each); a subscriber silent for max_blocking_time loses one."""
         self._collect(self.acks.try_wait())
+        if len(self._pending) < self.window:
+            return
         deadline = time.monotonic() + self.max_blocking_s
-        while len(self._pending) >= self.window and self.running():
+        while len(self._pending) > self.window // 2 and self.running():
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 oldest = next(iter(self._pending))
