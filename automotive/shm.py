@@ -13,8 +13,8 @@ transport sits beside DDS rather than inside it, the way RTI's Zero Copy does fo
   recorder); with none matched, nothing is serialized or sent on UDP.
 * Queueing follows the endpoint's QoS profile. A subscriber keeps the last ``depth`` frames (history depth, or
   ``max_samples_per_instance`` for keep-all); an older frame is overwritten (``enable_safe_overflow``) and shows
-  up as a gap. A reliable keep-all writer waits, before each frame, until no subscriber holds more than its window
-  of unconsumed frames, at most ``max_blocking_time``: the flow control of a reliable DDS stream. iceoryx2's own
+  up as a gap. A reliable keep-all writer whose subscribers hold a full window of unconsumed frames waits until
+  half of them are consumed, at most ``max_blocking_time``: the flow control of a reliable DDS stream. iceoryx2's own
   blocking back-pressure is not used: it holds the GIL while it waits and never returns once a subscriber died.
 * Stale files of processes that died without cleaning up (SIGKILL) are removed when a node starts; a clean stop
   removes ours.
@@ -39,7 +39,7 @@ from automotive.errors import ConfigError
 from automotive.properties import Properties
 
 TRANSPORTS = ("dds", "shm")
-DEFAULT_PREFIX = "iox2_"  # iceoryx2's own default: its command-line tools see our services
+DEFAULT_PREFIX = "iox2_"  # iceoryx2's own default prefix
 MAX_SUBSCRIBERS = 4
 MAX_DEPTH = 8  # per subscriber; the publisher's shared memory holds about MAX_SUBSCRIBERS * (MAX_DEPTH + 2) frames
 DEFAULT_DEPTH = 8  # keep-all without a resource limit
