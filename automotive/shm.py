@@ -254,7 +254,6 @@ class SharedFrameReader:
             self.subscriber = memory.frames.subscriber_builder().buffer_size(self.depth).create()
             self.listener = memory.events.listener_builder().create()
             self.notifier = memory.consumed.notifier_builder().create()
-        self.publishers_seen = 0
 
     def wake_ups(self, running: Callable[[], bool], timeout_s: float = 1.0) -> Iterator[bool]:
         """Yield after each wake-up (frames sent, or a timeout) while ``running()``; True once the publisher left."""
@@ -268,7 +267,6 @@ class SharedFrameReader:
                     break
                 waited += WAIT_SLICE_S
             publishers = self.memory.publishers
-            self.publishers_seen = max(self.publishers_seen, publishers)
             if running():
                 yield leaving and publishers == 0
 
