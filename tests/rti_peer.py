@@ -10,7 +10,7 @@ the test's domain holding only the writers and readers the test asks for, so mat
         alerts = peer.take_until("Alerts", 1)           # samples as dicts, bounded wait
 
 Endpoint names (see ENDPOINTS): Circle, Lidar, Alerts, Vision, PlatformControl, PlatformStatus, SensorObjects,
-Camera64KiB.
+Camera, Camera64KiB.
 RTI stays on loopback (UDPv4 only, no multicast, initial peer 127.0.0.1): see the Loopback QoS profile.
 """
 
@@ -52,6 +52,7 @@ ENDPOINTS: dict[str, Endpoint] = {
     "PlatformControl": Endpoint("PlatformControl", "Writer", "BestEffortReader"),
     "PlatformStatus": Endpoint("PlatformStatus", "Writer", "BestEffortReader"),
     "SensorObjects": Endpoint("SensorObjects", "Writer", "BestEffortReader"),
+    "Camera": Endpoint("CameraImageData", "Writer", "DefaultReader"),
     "Camera64KiB": Endpoint("CameraImageData_64KiB", "Writer", "ReliableReader"),
 }
 
@@ -89,7 +90,8 @@ class RtiPeer:
 
     ``writers``/``readers`` are endpoint names (keys of ENDPOINTS), or mappings from endpoint name to a QoS
     profile of the RtiPeerQos library: "Writer", "WriterXcdr2" (writes XCDR2), "ReliableReader",
-    "BestEffortReader", "ReliableReaderXcdr2"/"BestEffortReaderXcdr2" (also accept XCDR2), "Alerts".
+    "BestEffortReader", "ReliableReaderXcdr2"/"BestEffortReaderXcdr2" (also accept XCDR2), "Alerts",
+    "DefaultReader" (RTI's defaults: what an application that names no profile gets).
     Samples are dicts as RTI Connector gives them: nested dicts for structs, lists for sequences, arrays and octet
     sequences (a list of ints), ints for enums.
     """

@@ -30,7 +30,6 @@ from automotive.types.CameraImage import CameraImageData_64KiB
 
 ROOT = Path(__file__).resolve().parent.parent
 BEST_EFFORT_QOS = ROOT / "tests" / "data" / "camera_best_effort_qos.xml"
-SYNC_QOS = ROOT / "tests" / "data" / "camera_sync_qos.xml"
 TIMEOUT = 120.0  # starting Python, Cyclone and iceoryx2 on a loaded 2-core machine can take a while
 GLOBAL_FILE = re.compile(r"node\.[\d_]+\.global_mgmt$")  # iceoryx2's one shared file per prefix, not a service's
 _prefixes = itertools.count(1)
@@ -209,11 +208,10 @@ def test_stale_files_of_dead_processes_are_removed_on_start(apps, domain_id: int
 
 def test_shared_memory_subscriber_and_rti_reader_at_once(apps, domain_id: int,  # type: ignore[no-untyped-def]
                                                         prefix: str) -> None:
-    """The hybrid: frames through shared memory to our viewer and, because a DDS reader is matched, on DDS to RTI."""
+    """The hybrid, with the shipped QoS: frames through shared memory to our viewer and, because a DDS reader is
+    matched, on DDS to an RTI reader."""
     frames = 20
-    args = shm_args(domain_id, prefix, "-D", "config.imageSize=64KiB", "-D", "topic.Camera=CameraImageData_64KiB",
-                    "-D", f"qos.File={SYNC_QOS}", "-D", "qos.Library=CameraTests",
-                    "-D", "qos.Camera.Profile=CameraSync")
+    args = shm_args(domain_id, prefix, "-D", "config.imageSize=64KiB", "-D", "topic.Camera=CameraImageData_64KiB")
     with RtiPeer(domain_id, readers=["Camera64KiB"]) as rti:
         sub = apps.start("camera_sub", *args, "--count", str(frames))
         sub.wait_for("through shared memory", timeout=TIMEOUT)
