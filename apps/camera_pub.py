@@ -95,7 +95,7 @@ def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], i
     for seqnum in app.periodic(interval_s):
         try:
             write(camera_id, seqnum)
-        except DDSException as error:  # a reliable write that stayed blocked longer than max_blocking_time
+        except (DDSException, shm.FrameNotSent) as error:  # a reliable write blocked past max_blocking_time, or a stop
             app.log.warning("frame %d not written: %s", seqnum, error)
             continue
         written += 1

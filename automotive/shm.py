@@ -51,6 +51,10 @@ WAIT_SLICE_S = 0.2  # longest single wait, so that a stop signal is noticed prom
 _log = logging.getLogger(__name__)
 
 
+class FrameNotSent(Exception):
+    """A frame that was not published (the application stopped while flow control held it back)."""
+
+
 def transport(props: Properties) -> str:
     """``config.transport``: ``dds`` (default) or ``shm``."""
     return props.get_choice("config.transport", TRANSPORTS, "dds")
@@ -111,8 +115,10 @@ def _dead_nodes(config: Any) -> list[Any]:
 class SharedMemory:
     """One process's iceoryx2 node and the services of one topic; removes dead processes' files on start."""
 
-    def __init__(self, app_name: str, domain_id: int, topic: str, prefix: str = DEFAULT_PREFIX):
+    def __init__(self, app_name: str, domain_id: int, topic: str, prefix: str = DEFAULT_PREFIX,
+                 log: logging.Logger = _log):
         self.name = service_name(domain_id, topic)
+        self.log = log
         config = iox2.config.default()
         try:
             config.global_cfg.prefix = iox2.FileName.new(prefix)
@@ -210,19 +216,23 @@ class SharedFrameWriter:
 
     def _wait_for_room(self) -> None:
         """With ``window`` frames unconsumed, wait until half of them are (one wake-up for several frames, not one
-        each); a subscriber silent for max_blocking_time loses one."""
+        each), at most max_blocking_time; raise FrameNotSent when the application stops meanwhile."""
         self._collect(self.acks.try_wait())
         if len(self._pending) < self.window:
             return
         deadline = time.monotonic() + self.max_blocking_s
-        while len(self._pending) > self.window // 2 and self.running():
+        while len(self._pending) > self.window // 2:
+            if not self.running():
+                raise FrameNotSent("stopped while the shared-memory subscribers' queues were full")
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                oldest = next(iter(self._pending))
-                del self._pending[oldest]
-                _log.warning("a shared-memory subscriber did not consume a frame within %g s", self.max_blocking_s)
-                deadline = time.monotonic() + self.max_blocking_s
-                continue
+                # Nothing consumed for max_blocking_time: a subscriber is stopped or dead. Dead ones' ports go; the
+                # count starts again, and a stalled one loses the frames that overflow its queue (seen as gaps).
+                self.memory.frames.try_cleanup_dead_nodes()
+                self._pending.clear()
+                self.memory.log.warning("shared memory: no frame consumed for %g s; not waiting for that "
+                                        "subscriber any longer", self.max_blocking_s)
+                return
             self._collect(_wait(self.acks, min(remaining, WAIT_SLICE_S)))
 
     def _collect(self, activations: list[Any]) -> None:
@@ -319,7 +329,7 @@ def open_for(app: Any, role: str, default_topic: str) -> SharedMemory | None:
     if not prefix or not prefix.replace("_", "").replace("-", "").isalnum():
         raise ConfigError(f"{app.props.where('config.shmPrefix')}: config.shmPrefix = '{prefix}' is not a valid file "
                           "name prefix (expected letters, digits, '_' or '-')")
-    memory = SharedMemory(app.name, app.domain_id, app.topic_name(role, default_topic), prefix)
+    memory = SharedMemory(app.name, app.domain_id, app.topic_name(role, default_topic), prefix, app.log)
     if memory.stale_removed:
         app.log.info("shared memory: removed the files of %d dead process(es)", memory.stale_removed)
     app.log.info("shared memory: iceoryx2 service '%s' (prefix %s)", memory.name, prefix)

@@ -30,6 +30,7 @@ from automotive.types.CameraImage import CameraImageData_64KiB
 
 ROOT = Path(__file__).resolve().parent.parent
 BEST_EFFORT_QOS = ROOT / "tests" / "data" / "camera_best_effort_qos.xml"
+SHORT_BLOCKING_QOS = ROOT / "tests" / "data" / "camera_short_blocking_qos.xml"
 TIMEOUT = 120.0  # starting Python, Cyclone and iceoryx2 on a loaded 2-core machine can take a while
 GLOBAL_FILE = re.compile(r"node\.[\d_]+\.global_mgmt$")  # iceoryx2's one shared file per prefix, not a service's
 _prefixes = itertools.count(1)
@@ -99,6 +100,39 @@ def test_gaps_are_counted_when_the_subscriber_falls_behind(apps, domain_id: int,
     assert int(result["gaps"]) > 0, sub.output
     assert int(result["samples"]) + int(result["gaps"]) <= 400
     assert result["mismatches"] == "0", sub.output
+
+
+def test_a_stalled_or_dead_subscriber_holds_a_reliable_publisher_back_at_most_max_blocking_time(  # type: ignore[no-untyped-def]
+        apps, domain_id: int, prefix: str) -> None:
+    """Reliable keep-all with max_blocking_time 0.5 s: a frozen viewer (SIGSTOP) stops the flow only that long and
+    then loses what overflows its queue (gaps, never wrong bytes); a killed one (SIGKILL) does not stop it at all."""
+    qos = ["-D", f"qos.File={SHORT_BLOCKING_QOS}", "-D", "qos.Library=CameraTests",
+           "-D", "qos.Camera.Profile=CameraShortBlocking", "-D", "config.imageSize=64KiB"]
+    args = shm_args(domain_id, prefix, *qos)
+    stalled = apps.start("camera_sub", *args, "--exit-with-publisher")
+    stalled.wait_for(r"through shared memory \(keeping the last 8\)", timeout=TIMEOUT)
+    pub = apps.start("camera_pub", *args, "-D", "config.pubInterval=5")
+    stalled.wait_for(r"samples=\d+ size=65536", timeout=TIMEOUT)
+    os.kill(stalled.process.pid, signal.SIGSTOP)
+    try:
+        pub.wait_for(r"shared memory: no frame consumed for 0.5 s", timeout=TIMEOUT)
+        published = pub.count(r"published \d+ frames:")
+        pub.wait_for(r"published \d+ frames:", count=published + 2, timeout=TIMEOUT)  # the flow goes on
+    finally:
+        os.kill(stalled.process.pid, signal.SIGCONT)
+    seen = stalled.count(r"samples=\d+ size=65536")
+    stalled.wait_for(r"samples=\d+ size=65536", count=seen + 1, timeout=TIMEOUT)  # it catches up
+    dead = apps.start("camera_sub", *args)
+    dead.wait_for(r"samples=\d+ size=65536", timeout=TIMEOUT)
+    dead.stop(signal.SIGKILL)
+    warnings = pub.count(r"no frame consumed for 0.5 s")
+    pub.wait_for(r"no frame consumed for 0.5 s", count=warnings + 1, timeout=TIMEOUT)  # the dead one's queue filled
+    published = pub.count(r"published \d+ frames:")
+    pub.wait_for(r"published \d+ frames:", count=published + 2, timeout=TIMEOUT)
+    assert pub.stop(signal.SIGTERM) == 0, pub.output
+    assert stalled.wait_exit(timeout=TIMEOUT) == 0, stalled.output
+    result = totals(stalled.output)
+    assert int(result["gaps"]) > 0 and result["mismatches"] == "0", stalled.output
 
 
 def test_frames_are_read_only_views_of_shared_memory_that_end_with_their_block(domain_id: int, prefix: str) -> None:
