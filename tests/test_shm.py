@@ -50,7 +50,7 @@ def files_of(prefix: str, include_global: bool = False) -> set[Path]:
     found = set(Path("/dev/shm").glob(f"{prefix}*"))
     root = Path("/tmp/iceoryx2")
     if root.is_dir():
-        found |= {path for path in root.rglob(f"{prefix}*") if path.is_file()}
+        found |= {path for path in root.rglob(f"{prefix}*") if not path.is_dir()}  # files and event sockets
     return found if include_global else {path for path in found if not GLOBAL_FILE.search(path.name)}
 
 
