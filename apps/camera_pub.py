@@ -2,6 +2,8 @@
 
 Data flow:  LFSR pattern (automotive.lfsr)  -->  CameraImage::CameraImageData on CameraImageData (keyed by
 config.ddsId), one frame every config.pubInterval ms (0: as fast as flow control allows), seqnum 1, 2, 3, ...
+With config.transport=shm the frames go to same-host subscribers through shared memory (automotive.shm), and on DDS
+only while a DDS reader is matched.
 """
 
 from __future__ import annotations
@@ -9,10 +11,12 @@ from __future__ import annotations
 import sys
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from cyclonedds.core import DDSException
 
+from automotive import shm
 from automotive.app import Application, run
 from automotive.camera import (
     FrameWriter,
@@ -38,15 +42,16 @@ class SubscriberCount:
                 self.current = status.current_count
                 self.changed.notify_all()
 
-    def wait_for(self, app: Application, minimum: int) -> bool:
-        """Wait until ``minimum`` readers matched or the application is stopped; True if they did."""
+    def wait_for(self, app: Application, minimum: int, others: Callable[[], int] = lambda: 0) -> bool:
+        """Wait until ``minimum`` readers (DDS readers plus ``others()``) matched or the application is stopped;
+        True if they did."""
         if minimum <= 0:
             return True
         app.log.info("waiting for %d subscriber(s)", minimum)
         with self.changed:
-            while app.running and self.current < minimum:
-                self.changed.wait(0.2)  # bounded, so that a stop signal is noticed
-            return self.current >= minimum
+            while app.running and self.current + others() < minimum:
+                self.changed.wait(0.2)  # bounded, so that a stop signal (or a shared-memory subscriber) is noticed
+            return self.current + others() >= minimum
 
 
 def body(app: Application) -> None:
@@ -56,25 +61,41 @@ def body(app: Application) -> None:
     wait_subscribers = app.props.get_int("config.waitSubscribers", 1, minimum=0)
     size = frame_size(data_type)
 
+    memory = shm.open_for(app, "Camera", "CameraImageData")
+
     subscribers = SubscriberCount()
     # The pattern stream is generated once; each frame is a window of it, written without a copy.
     writer = FrameWriter(app.writer("Camera", data_type, "CameraImageData", hook=subscribers.hook), FramePattern(size))
+    shared: shm.SharedFrameWriter | None = None
+    if memory is not None:
+        writer_qos = app.profiles.writer_qos(app.library, app.profile("Camera"))
+        shared = shm.SharedFrameWriter(memory, writer, writer_qos, lambda: subscribers.current, lambda: app.running)
     tune_process_for_large_frames()
     app.ready()
-    app.log.info("camera %d: %s frames of %d bytes, %s", camera_id, data_type.__name__, size,
-                 f"one every {interval_ms:g} ms" if interval_ms else "as fast as flow control allows")
-    if subscribers.wait_for(app, wait_subscribers):
-        publish(app, writer, camera_id, interval_ms / 1000)
+    app.log.info("camera %d: %s frames of %d bytes, %s%s", camera_id, data_type.__name__, size,
+                 f"one every {interval_ms:g} ms" if interval_ms else "as fast as flow control allows",
+                 ", through shared memory (and DDS while a DDS reader is matched)" if shared else "")
+    try:
+        if subscribers.wait_for(app, wait_subscribers, shared.count_subscribers if shared else lambda: 0):
+            publish(app, writer, shared.write_pattern if shared else writer.write_pattern, camera_id,
+                    interval_ms / 1000)
+    finally:
+        if shared is not None:
+            app.log.info("shared memory: %d frames sent, %d written on DDS", shared.sent_shared, shared.sent_dds)
+            shared.close()
+        if memory is not None:
+            memory.close()
 
 
-def publish(app: Application, writer: FrameWriter, camera_id: int, interval_s: float) -> None:
+def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], int], camera_id: int,
+            interval_s: float) -> None:
     size = writer.codec.size
     written = 0
     window_start, window_frames = time.monotonic(), 0
     for seqnum in app.periodic(interval_s):
         try:
-            writer.write_pattern(camera_id, seqnum)
-        except DDSException as error:  # a reliable write that stayed blocked longer than max_blocking_time
+            write(camera_id, seqnum)
+        except (DDSException, shm.FrameNotSent) as error:  # a reliable write blocked past max_blocking_time, or a stop
             app.log.warning("frame %d not written: %s", seqnum, error)
             continue
         written += 1

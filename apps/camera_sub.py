@@ -6,6 +6,8 @@ latency min/avg/max, MB/s, mismatches, gaps), the totals on exit, and with --plo
 Latency is the receive time minus the frame's sec_/nanosec_ stamp, both on this host's clock (publisher and
 subscriber on one host, or hosts with synchronised clocks). Each image is compared with the LFSR pattern that the
 publisher sent for its seqnum (automotive.lfsr); a jump in seqnum counts the frames missing in between as gaps.
+With config.transport=shm the frames come through shared memory from a publisher on this host (automotive.shm),
+viewed in place and read-only; no DDS reader is created, so the publisher does not write them on DDS for us.
 """
 
 from __future__ import annotations
@@ -13,12 +15,14 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from cyclonedds.core import GuardCondition, WaitSet
 
+from automotive import shm
 from automotive.app import Application, run
 from automotive.camera import (
     Frame,
@@ -182,6 +186,13 @@ def body(app: Application) -> None:
     plot_path: Path | None = app.args.plot
     check_plot_path(plot_path)
     exit_with_publisher: bool = app.args.exit_with_publisher
+    memory = shm.open_for(app, "Camera", "CameraImageData")
+    if memory is not None:
+        try:
+            view_shared_memory(app, memory, data_type, plot_path, exit_with_publisher)
+        finally:
+            memory.close()
+        return
 
     publisher_left = GuardCondition(app.bus.participant)
     writers_seen = 0
@@ -200,7 +211,29 @@ def body(app: Application) -> None:
     tune_process_for_large_frames()
     app.log.info("viewing %s frames of %d bytes%s", data_type.__name__, size,
                  ", until the publisher leaves" if exit_with_publisher else "")
-    view(app, frames, waitset, publisher_left, FramePattern(size), stats)
+    show(app, frames, dds_wake_ups(app, waitset, publisher_left), FramePattern(size), stats, plot_path, data_type)
+
+
+def view_shared_memory(app: Application, memory: shm.SharedMemory, data_type: type[Any], plot_path: Path | None,
+                       exit_with_publisher: bool) -> None:
+    shared = shm.SharedFrameReader(memory, data_type, app.profiles.reader_qos(app.library, app.profile("Camera")))
+    try:
+        tune_process_for_large_frames()
+        size = frame_size(data_type)
+        app.log.info("viewing %s frames of %d bytes through shared memory (keeping the last %d)%s", data_type.__name__,
+                     size, shared.depth, ", until the publisher leaves" if exit_with_publisher else "")
+        app.ready()
+        wake_ups = (left and exit_with_publisher for left in shared.wake_ups(lambda: app.running))
+        show(app, shared, wake_ups, FramePattern(size), CameraStats(size), plot_path, data_type)
+    finally:
+        shared.close()
+
+
+def show(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups: Iterator[bool],
+         pattern: FramePattern, stats: CameraStats, plot_path: Path | None, data_type: type[Any]) -> None:
+    """Verify frames until stopped, then print the totals and write the plot."""
+    view(app, frames, wake_ups, pattern, stats)
+    size = stats.size
     stats.report_window(app.log, force=True)
     app.log.info("%s", stats.totals_line())
     if plot_path is not None and stats.total.samples:
@@ -208,10 +241,15 @@ def body(app: Application) -> None:
         app.log.info("latency plot written to %s", plot_path)
 
 
-def view(app: Application, frames: FrameReader, waitset: WaitSet, publisher_left: GuardCondition,
-         pattern: FramePattern, stats: CameraStats) -> None:
+def dds_wake_ups(app: Application, waitset: WaitSet, publisher_left: GuardCondition) -> Iterator[bool]:
+    """After each wake-up: True once every matched publisher has left."""
     for _ in app.wake_ups(waitset):
-        leaving = publisher_left.read()  # read before taking: every frame it sent is then already here
+        yield publisher_left.read()  # read before taking: every frame it sent is then already here
+
+
+def view(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups: Iterator[bool],
+         pattern: FramePattern, stats: CameraStats) -> None:
+    for leaving in wake_ups:
         while app.running:  # take until the reader is empty
             with frames.take(TAKE_LIMIT) as batch:  # the frames' data are views, valid inside this block
                 if not batch:

@@ -214,13 +214,34 @@ class FrameWriter:
         finally:
             self._stream_view[start:end] = borrowed
 
+    @property
+    def serialized_length(self) -> int:
+        """Bytes of one serialized frame as this writer writes it (header, image, padding)."""
+        return self._padded_length
+
+    def build_pattern_frame(self, target: memoryview, id: int, seqnum: int) -> int:
+        """Build the pattern's frame for ``seqnum`` as a complete serialized sample in ``target`` (loaned shared
+        memory, ``serialized_length`` bytes): one copy of the image; return its timestamp (ns)."""
+        if self.pattern is None:
+            raise ValueError("this FrameWriter has no pattern")
+        start, end = self.codec.header_length, self.codec.header_length + self.codec.size
+        target[start:end] = self.pattern.frame(seqnum)
+        target[end:self._padded_length] = bytes(self._padded_length - end)
+        stamp = time.time_ns()
+        self.codec.pack_header(target, 0, id, *divmod(stamp, 1_000_000_000), seqnum)
+        return stamp
+
+    def write_serialized(self, view: memoryview) -> None:
+        """Write a complete serialized frame (as :meth:`build_pattern_frame` makes) on DDS."""
+        result = ddspy_write(self.writer._ref, view)
+        if result < 0:
+            raise DDSException(result, f"Occurred while writing a frame in {self.writer!r}")
+
     def _write_span(self, view: memoryview, start: int, id: int, seqnum: int) -> int:
         stamp = time.time_ns()
         sec, nanosec = divmod(stamp, 1_000_000_000)
         self.codec.pack_header(view, start, id, sec, nanosec, seqnum)
-        result = ddspy_write(self.writer._ref, view[start:start + self._padded_length])
-        if result < 0:
-            raise DDSException(result, f"Occurred while writing a frame in {self.writer!r}")
+        self.write_serialized(view[start:start + self._padded_length])
         return stamp
 
 
@@ -293,6 +314,25 @@ class TakenFrames:
             release()
 
 
+def release_views(frames: list[Frame], views: list[memoryview], arrays: list[ctypes.Array[ctypes.c_char]]) -> None:
+    """Release the views of lent buffers (``arrays``) before the buffers go back to their owner.
+
+    Every view of a lent buffer (a memoryview, a numpy array made from one) keeps its ctypes array alive. With ours
+    released, the list, the comprehension's variable and getrefcount's argument must be the only references left;
+    otherwise something still reads the sample, and giving it back would let that read freed (or rewritten) memory:
+    keep it (a leak) and say so.
+    """
+    for frame in frames:
+        frame.data.release()
+    for view in views:
+        view.release()
+    views.clear()
+    if any(count > 3 for count in [sys.getrefcount(array) for array in arrays]):
+        raise RuntimeError("a taken frame's data is still in use after its 'with' block; copy it first "
+                           "(bytes(frame.data)) to keep it")
+    arrays.clear()
+
+
 class FrameReader:
     """Takes frames from a DataReader of a frame type, without deserializing the image (and, where Cyclone's C
     library lends the received bytes, without copying them)."""
@@ -340,19 +380,7 @@ class FrameReader:
     def _give_back(self, frames: list[Frame], views: list[memoryview], arrays: list[ctypes.Array[ctypes.c_char]],
                    lent: list[tuple[int, _IoVec]], samples: list[int]) -> None:
         assert self._access is not None
-        for frame in frames:
-            frame.data.release()
-        for view in views:
-            view.release()
-        views.clear()
-        # Every view of a lent buffer (a memoryview, a numpy array made from one) keeps its ctypes array alive.
-        # With ours released, the list, the comprehension's variable and getrefcount's argument must be the only
-        # references left; otherwise something still reads the sample, and giving it back to Cyclone would let
-        # that read freed memory: keep it (a leak) and say so.
-        if any(count > 3 for count in [sys.getrefcount(array) for array in arrays]):
-            raise RuntimeError("a taken frame's data is still in use after its 'with' block; copy it first "
-                               "(bytes(frame.data)) to keep it")
-        arrays.clear()
+        release_views(frames, views, arrays)
         for pointer, iov in lent:
             self._access.to_ser_unref(pointer, ctypes.byref(iov))
         for pointer in samples:

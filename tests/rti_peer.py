@@ -10,7 +10,7 @@ the test's domain holding only the writers and readers the test asks for, so mat
         alerts = peer.take_until("Alerts", 1)           # samples as dicts, bounded wait
 
 Endpoint names (see ENDPOINTS): Circle, Lidar, Alerts, Vision, PlatformControl, PlatformStatus, SensorObjects,
-Camera.
+Camera, Camera64KiB.
 RTI stays on loopback (UDPv4 only, no multicast, initial peer 127.0.0.1): see the Loopback QoS profile.
 """
 
@@ -53,6 +53,7 @@ ENDPOINTS: dict[str, Endpoint] = {
     "PlatformStatus": Endpoint("PlatformStatus", "Writer", "BestEffortReader"),
     "SensorObjects": Endpoint("SensorObjects", "Writer", "BestEffortReader"),
     "Camera": Endpoint("CameraImageData", "Writer", "DefaultReader"),
+    "Camera64KiB": Endpoint("CameraImageData_64KiB", "Writer", "ReliableReader"),
 }
 
 # Each peer gets its own participant library name: RTI keeps XML definitions per process.
