@@ -191,23 +191,28 @@ def body(app: Application) -> None:
     started = time.monotonic()
     deadline = started + app.args.duration if app.args.duration else None
     next_status = started + 1.0
+
+    def take_all() -> None:
+        for topic, raw in readers:
+            while True:
+                samples = raw.take(TAKE_LIMIT)
+                if not samples:
+                    break
+                receive_ns = time.time_ns()
+                for sample in samples:
+                    recording.offer(topic, sample, receive_ns)
+                    app.tick()
+
     try:
         for _ in app.wake_ups(app.waitset(*(raw.reader for _, raw in readers)), timeout_s=0.2):
-            for topic, raw in readers:
-                while app.running:
-                    samples = raw.take(TAKE_LIMIT)
-                    if not samples:
-                        break
-                    receive_ns = time.time_ns()
-                    for sample in samples:
-                        recording.offer(topic, sample, receive_ns)
-                        app.tick()
+            take_all()
             now = time.monotonic()
             if now >= next_status:
                 app.log.info("%s", recording.status())
                 next_status = now + 1.0
             if deadline is not None and now >= deadline:
                 app.stop()
+        take_all()  # what arrived since the last wake-up is recorded too
     finally:
         recording.close()
     elapsed = time.monotonic() - started
