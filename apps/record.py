@@ -40,7 +40,8 @@ COMPRESSIONS = {"lz4": CompressionType.LZ4, "zstd": CompressionType.ZSTD, "none"
 
 @dataclass
 class TopicCounts:
-    messages: int = 0
+    messages: int = 0  # samples of data
+    changes: int = 0  # disposals and unregistrations
     bytes: int = 0
     lost: int = 0  # samples the queue had no room for
     dds_lost: int = 0  # samples DDS reported lost before they reached the reader (best-effort flows)
@@ -118,7 +119,10 @@ class Recording:
                 with self._changed:
                     self.queued_bytes -= len(sample.data)
                 counts = self.counts[topic]
-                counts.messages += 1
+                if sample.kind is SampleKind.DATA:
+                    counts.messages += 1
+                else:
+                    counts.changes += 1
                 counts.bytes += len(sample.data)
                 unflushed += 1
             if unflushed and time.monotonic() - last_flush >= FLUSH_INTERVAL_S:
@@ -139,11 +143,11 @@ class Recording:
             self._changed.notify()
         self._thread.join()
         self.writer.finish()
-        self.on_disk = sum(counts.messages for counts in self.counts.values())
+        self.on_disk = sum(counts.messages + counts.changes for counts in self.counts.values())
         self.stream.close()
 
     def totals(self) -> str:
-        total = sum(c.messages for c in self.counts.values())
+        total = sum(c.messages + c.changes for c in self.counts.values())
         size = sum(c.bytes for c in self.counts.values())
         lost = sum(c.lost + c.dds_lost for c in self.counts.values())
         return (f"recorded={total} on_disk={self.on_disk} MB={size / 1e6:.2f} file_MB={self.file_size() / 1e6:.2f} "
@@ -219,8 +223,8 @@ def body(app: Application) -> None:
     written = sum(c.bytes for c in recording.counts.values())
     size = recording.file_size()
     for topic, counts in recording.counts.items():
-        app.log.info("summary %s: messages=%d MB=%.3f lost=%d dds_lost=%d", topic, counts.messages,
-                     counts.bytes / 1e6, counts.lost, counts.dds_lost)
+        app.log.info("summary %s: messages=%d changes=%d MB=%.3f lost=%d dds_lost=%d", topic, counts.messages,
+                     counts.changes, counts.bytes / 1e6, counts.lost, counts.dds_lost)
     app.log.info("summary: %s in %.1f s, file %s of %.2f MB (compression ratio %.2f)", recording.totals(),
                  elapsed, path, size / 1e6, written / size if size else 0.0)
 

@@ -14,6 +14,7 @@ from dds_helpers import wait_until
 from mcap.reader import make_reader
 from mcap.writer import Writer
 from rti_peer import RtiPeer
+from test_record import recorded_count, write_until_recorded
 from test_system import CAR, HEADER, TRUCK, vision_row
 
 from automotive.endpoints import Databus
@@ -112,14 +113,15 @@ def test_an_rti_reader_receives_replayed_samples_as_live_ones(apps, bus: Databus
         peer.wait_for_writers("Vision", timeout=TIMEOUT)
         # Sample 0 opens the recording; the others follow a second later, when replayed too: by then the RTI reader
         # has matched the replaying writer (a best-effort sample written before that is not delivered).
-        writer.write(vision(0))
+        write_until_recorded(recorder, writer, vision(0), "VisionTopic")
         live = peer.take_until("Vision", 1, timeout=TIMEOUT)
-        wait_until(lambda: recorder.count(r"recorded=1 ") > 0, TIMEOUT, "the recorder to record sample 0")
+        primers = recorded_count(recorder, "VisionTopic")
         ids = range(1, 6)
         for sensor_id in ids:
             writer.write(vision(sensor_id))
-        live += peer.take_until("Vision", len(ids), timeout=TIMEOUT)
-        recorder.wait_for(rf"recorded={len(ids) + 1} ", timeout=TIMEOUT)
+        live += peer.take_until("Vision", len(ids), timeout=TIMEOUT, accept=lambda sample: sample["id"] > 0)
+        wait_until(lambda: recorded_count(recorder, "VisionTopic") == primers + len(ids), TIMEOUT,
+                   "the recorder to record samples 1 to 5")
         assert recorder.stop(signal.SIGINT) == 0, recorder.output
 
         replay = apps.start("replay", str(drive), "--domain", str(domain_id), "--wait-readers", "1")
