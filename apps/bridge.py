@@ -78,16 +78,11 @@ def body(app: Application) -> None:
     try:
         for _ in app.wake_ups(app.waitset(*(raw.reader for _, raw, _ in readers)), timeout_s=0.5):
             for topic, raw, channel in readers:
-                while True:
-                    samples = raw.take(TAKE_LIMIT)
-                    if not samples:
-                        break
-                    receive_ns = time.time_ns()
-                    for sample in samples:
-                        if sample.kind is SampleKind.DATA:
-                            channel.log(bytes(sample.data), log_time=receive_ns)
-                            forwarded[topic] += 1
-                            app.tick()
+                for sample, receive_ns in raw.drain(TAKE_LIMIT):
+                    if sample.kind is SampleKind.DATA:
+                        channel.log(bytes(sample.data), log_time=receive_ns)
+                        forwarded[topic] += 1
+                        app.tick()
             if time.monotonic() >= next_status:
                 next_status = time.monotonic() + 1.0
                 app.log.info("forwarded %s; %d subscription(s)", status(forwarded), listener.subscriptions)

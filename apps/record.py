@@ -2,8 +2,8 @@
 
 Data flow:  every topic of the system (automotive.flows; --topics to choose), each read with the reader side of its
 writer's QoS profile and a history that keeps every sample  -->  serialized samples, never deserialized
-(automotive.rawsample)  -->  a bounded queue  -->  the writer thread: MCAP chunks, compressed (config.compression),
-on disk every second  -->  --output FILE
+(automotive.rawsample)  -->  a bounded queue  -->  the writer thread: MCAP chunks (compressed with
+config.compression=lz4|zstd; none by default), on disk every second  -->  --output FILE
 
 The file: MCAP profile ``ros2``, one channel per topic, message encoding ``cdr``: the bytes exactly as received
 (encapsulation header included); log time = reception, publish time = the writer's source timestamp; disposals and
@@ -173,7 +173,7 @@ def body(app: Application) -> None:
     flows = select(system_flows(), [name for name in app.args.topics.split(",") if name] if app.args.topics else [])
     if app.args.duration is not None and app.args.duration <= 0:
         raise ConfigError(f"--duration {app.args.duration:g}: expected a number of seconds above 0")
-    compression = app.props.get_choice("config.compression", list(COMPRESSIONS), "lz4")
+    compression = app.props.get_choice("config.compression", list(COMPRESSIONS), "none")
     chunk_size = app.props.get_int("config.chunkSize", 1024 * 1024, minimum=1024)
     queue_bytes = int(app.props.get_float("config.queueMB", 512, minimum=1) * 1e6)
     writer_qos = {flow.topic: app.profiles.writer_qos(app.library, flow.profile) for flow in flows}
@@ -198,14 +198,9 @@ def body(app: Application) -> None:
 
     def take_all() -> None:
         for topic, raw in readers:
-            while True:
-                samples = raw.take(TAKE_LIMIT)
-                if not samples:
-                    break
-                receive_ns = time.time_ns()
-                for sample in samples:
-                    recording.offer(topic, sample, receive_ns)
-                    app.tick()
+            for sample, receive_ns in raw.drain(TAKE_LIMIT):
+                recording.offer(topic, sample, receive_ns)
+                app.tick()
 
     try:
         for _ in app.wake_ups(app.waitset(*(raw.reader for _, raw in readers)), timeout_s=0.2):

@@ -19,7 +19,8 @@ from __future__ import annotations
 import ctypes
 import enum
 import sys
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -180,6 +181,17 @@ class RawReader:
         for serialized, info in result:
             samples.extend(self._samples(serialized, info))
         return samples
+
+    def drain(self, limit: int = 64) -> Iterator[tuple[RawSample, int]]:
+        """Take until the reader is empty, yielding each sample with its reception time (ns since the epoch: when
+        the batch it came in was taken)."""
+        while True:
+            samples = self.take(limit)
+            if not samples:
+                return
+            receive_ns = time.time_ns()
+            for sample in samples:
+                yield sample, receive_ns
 
     def lend(self, limit: int = 16) -> LentSamples:
         """Take up to ``limit`` samples lending Cyclone's buffers: ``with reader.lend() as samples: ...``.
