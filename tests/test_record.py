@@ -114,14 +114,15 @@ def test_round_trip_with_mcap_and_rosbags(apps, bus: Databus, domain_id: int, tm
         assert message.data == wire(sample)  # the wire bytes, header included
         assert message.publish_time == stamp
         assert before <= message.log_time <= time.time_ns()
-    alert_qos = by_topic["AlertTopic"][1].metadata["offered_qos_profiles"]
-    assert "reliability: 1\n" in alert_qos and "durability: 1\n" in alert_qos  # reliable, transient local
 
     # rosbags registers the IDL type Vision::VisionSensor as Vision/VisionSensor, and drops IDL enums (so it cannot
     # decode the types with an enum member: vision, sensor objects, platform); the alert and the cloud it decodes.
     with AnyReader([output]) as reader:
         decoded = {connection.topic: reader.deserialize(raw, connection.msgtype.replace("::", "/"))
                    for connection, _, raw in reader.messages() if connection.topic != "VisionTopic"}
+        [qos] = next(c for c in reader.connections if c.topic == "AlertTopic").ext.offered_qos_profiles
+    assert (qos.history.name, qos.depth, qos.reliability.name, qos.durability.name, qos.liveliness.name,
+            qos.liveliness_lease_duration.sec) == ("KEEP_LAST", 1, "RELIABLE", "TRANSIENT_LOCAL", "AUTOMATIC", 60)
     seen = VisionSensor.deserialize(by_topic["VisionTopic"][2].data)
     assert seen == VISION
     seen = decoded["AlertTopic"]

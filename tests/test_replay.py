@@ -9,18 +9,23 @@ import signal
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
-from dds_helpers import wait_until
+from dds_helpers import take_samples, wait_until
 from mcap.reader import make_reader
 from mcap.writer import Writer
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Rosbag2Writer
+from rosbags.typesys import Stores, get_typestore
 from rti_peer import RtiPeer
-from test_record import recorded_count, write_until_recorded
+from test_record import cloud, recorded_count, wire, write_until_recorded
 from test_system import CAR, HEADER, TRUCK, vision_row
 
 from automotive.endpoints import Databus
 from automotive.flows import IDL_FILE
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
+from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.types.Vision import VisionObject, VisionSensor
 
 TIMEOUT = 60.0
@@ -130,6 +135,29 @@ def test_an_rti_reader_receives_replayed_samples_as_live_ones(apps, bus: Databus
     expected = [sample for sample in live if sample["id"] > 0]
     assert [sample["id"] for sample in expected] == list(ids)
     assert replayed == expected
+
+
+def test_a_rosbag2_recording_is_replayed(apps, bus: Databus, domain_id: int, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """A rosbag2 MCAP bag (written by rosbags as ros2 bag record writes it) of /LidarTopic reaches rt/LidarTopic."""
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    sent = cloud()
+    types = store.types
+    message = types["sensor_msgs/msg/PointCloud2"](
+        header=types["std_msgs/msg/Header"](stamp=types["builtin_interfaces/msg/Time"](
+            sec=sent.header_.stamp_.sec_, nanosec=sent.header_.stamp_.nanosec_), frame_id=sent.header_.frame_id_),
+        height=sent.height_, width=sent.width_, is_bigendian=sent.is_bigendian_, point_step=sent.point_step_,
+        row_step=sent.row_step_, is_dense=sent.is_dense_, data=np.frombuffer(bytes(sent.data_), np.uint8),
+        fields=[types["sensor_msgs/msg/PointField"](name=f.name_, offset=f.offset_, datatype=f.datatype_,
+                                                     count=f.count_) for f in sent.fields_])
+    with Rosbag2Writer(tmp_path / "bag", version=8, storage_plugin=StoragePlugin.MCAP) as bag:
+        connection = bag.add_connection("/LidarTopic", "sensor_msgs/msg/PointCloud2", typestore=store)
+        bag.write(connection, 1_000_000_000, store.serialize_cdr(message, "sensor_msgs/msg/PointCloud2"))
+    [recording] = (tmp_path / "bag").glob("*.mcap")
+    reader = bus.reader("rt/LidarTopic", PointCloud2_, "Lidar")
+    replay = apps.start("replay", str(recording), "--domain", str(domain_id), "--wait-readers", "1")
+    [received] = take_samples(reader, 1, timeout=TIMEOUT)
+    assert replay.wait_exit(timeout=TIMEOUT) == 0, replay.output
+    assert wire(received) == wire(sent)
 
 
 def write_mcap(path: Path, channels: list[tuple[str, str, str, bytes]]) -> None:
