@@ -56,12 +56,17 @@ class RawSample:
     data: Buffer
     kind: SampleKind
     source_timestamp: int  # ns since the epoch, as stamped by the writer
-    writer: int  # the publication (writer) handle
-    instance: int  # the instance handle (0 for a keyless type)
+    writer: int  # the writer's instance handle, as DataReader.get_matched_publications lists it
+    instance: int  # the instance handle
     instance_state: int  # an InstanceState value: alive, disposed, no writers
 
 
 _EMPTY_KEY = b"\x00\x01\x00\x00"  # an XCDR1 little-endian header and no key: the key of a keyless type
+
+
+def _handle(value: int) -> int:
+    """An instance handle as Cyclone Python's API gives them (a signed 64-bit number), whatever way it was read."""
+    return ctypes.c_int64(value).value
 
 
 def _state_change(instance_state: int) -> SampleKind:
@@ -162,8 +167,8 @@ class RawReader:
         A disposal or unregistration that arrives while its instance still holds unread data produces no sample of
         its own: Cyclone changes the instance state of that data instead. The newest sample of such an instance
         (sample rank 0) is therefore followed by the state change, carrying the data's key and timestamp."""
-        stamp, writer, instance, state = (info.source_timestamp, info.publication_handle, info.instance_handle,
-                                          info.instance_state)
+        stamp, writer, instance, state = (info.source_timestamp, _handle(info.publication_handle),
+                                          _handle(info.instance_handle), info.instance_state)
         if not info.valid_data:
             key = key_to_sample(self.data_type, data) if data or self._keyless else b""
             return [RawSample(key, _state_change(state), stamp, writer, instance, state)]

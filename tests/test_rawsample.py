@@ -54,6 +54,7 @@ def test_take_gives_the_wire_bytes_timestamp_and_writer(bus: Databus) -> None:
     assert bytes(taken.data) == sample.serialize(use_version_2=False)  # XCDR1, header included
     assert taken.source_timestamp == 1_700_000_000_123_456_789
     assert taken.writer == writer.instance_handle
+    assert reader.get_matched_publications() == [writer.instance_handle]
     assert taken.instance_state == InstanceState.Alive
 
 
