@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import socket
 import struct
 import time
 from pathlib import Path
@@ -121,3 +122,17 @@ def test_a_stuck_client_costs_bounded_memory(apps, bus: Databus, domain_id: int)
     # Unbounded, the bridge would hold most of the 500 MB for the stuck client; bounded, the backlog's 8 frames
     # (34 MB) and what the library keeps in flight.
     assert growth < 200, f"the bridge grew by {growth:.0f} MB for a stuck client"
+
+
+def test_bad_input_is_one_line(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        for args, message in ((["--port", str(port)], rf"--port {port}: cannot start the WebSocket server"),
+                              (["--topics", "VisionTopic,Nope"], r"--topics: unknown topic\(s\) Nope \(known: "),
+                              (["--port", "70000"], r"--port 70000: expected 0\.\.65535")):
+            result = apps.run("bridge", "--domain", str(domain_id), *args, timeout=TIMEOUT)
+            assert result.returncode == 2, result.stdout + result.stderr
+            assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+            assert re.search(rf"^bridge: .*{message}", result.stderr), result.stderr
