@@ -75,15 +75,19 @@ def test_channels_and_payloads_over_the_foxglove_protocol(apps, bus: Databus, do
         wait_until(lambda: bool(vision.get_matched_subscriptions() and lidar.get_matched_subscriptions()), TIMEOUT,
                    "the bridge's readers")
         before = time.time_ns()
-        vision.write(VISION)
         lidar.write(cloud())
         received: dict[str, tuple[int, bytes]] = {}
         deadline = time.monotonic() + TIMEOUT
-        while len(received) < 2 and time.monotonic() < deadline:
+        while len(received) < 2:
+            # Best effort: a sample written just after matching may miss the reader; the vision sample is written
+            # again until it arrives.
+            assert time.monotonic() < deadline, f"received only {list(received)}; the bridge said:\n{bridge.output}"
+            if "VisionTopic" not in received:
+                vision.write(VISION)
             try:
-                message = client.recv(timeout=TIMEOUT)
-            except Exception as error:
-                raise AssertionError(f"{error!r}; the bridge said:\n{bridge.output}") from None
+                message = client.recv(timeout=1.0)
+            except TimeoutError:
+                continue
             if isinstance(message, bytes) and message[0] == MESSAGE_DATA:
                 subscription, log_time = struct.unpack_from("<IQ", message, 1)
                 received[subscriptions[subscription]] = (log_time, message[13:])
