@@ -6,9 +6,9 @@ treats ``data`` as one block already, but it grows its buffer from 512 bytes by 
 twice more (about 11 ms for a 4 MiB frame); reading copies the sample three times (about 3.5 ms). For this one
 fixed layout the codec writes the CDR stream itself into a buffer allocated once (the 16 header bytes packed with
 ``struct``, the image copied in by one ``memcpy``) and hands it to Cyclone's C layer as the writer's serialized
-sample, and on the reading side it parses the 16 header bytes and returns the image as a ``memoryview`` of the
-received buffer, without a copy. ``tests/test_camera.py`` checks that the bytes are those of Cyclone's
-serializer, in XCDR1 and XCDR2, both byte orders.
+sample (``automotive.rawsample``), and on the reading side it parses the 16 header bytes and returns the image as
+a ``memoryview`` of the received buffer, without a copy. ``tests/test_camera.py`` checks that the bytes are those of
+Cyclone's serializer, in XCDR1 and XCDR2, both byte orders.
 """
 
 from __future__ import annotations
@@ -22,13 +22,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from cyclonedds._clayer import ddspy_take, ddspy_write
-from cyclonedds.core import DDSException, InstanceState, SampleState, ViewState
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
 from automotive.errors import ConfigError
 from automotive.lfsr import FramePattern, frame_offset
+from automotive.rawsample import RawReader, RawWriter, SampleKind
 from automotive.types.CameraImage import (
     CameraImageData,
     CameraImageData_1MiB,
@@ -48,7 +47,6 @@ FRAME_TYPES: dict[str, type[Any]] = {
 _CDR_BE, _CDR_LE = 0x0000, 0x0001  # XCDR1: no header in front of an appendable struct
 _D_CDR2_BE, _D_CDR2_LE = 0x0008, 0x0009  # XCDR2 appendable: a 4-byte DHEADER (the body's length) comes first
 _HEADER_FIELDS = 16  # id, sec_, nanosec_, seqnum
-_ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
 _LITTLE_FIELDS = struct.Struct("<IiII")
 _BIG_FIELDS = struct.Struct(">IiII")
 
@@ -178,6 +176,7 @@ class FrameWriter:
 
     def __init__(self, writer: DataWriter[Any], pattern: FramePattern | None = None):
         self.writer = writer
+        self._raw = RawWriter(writer)
         # The DataWriter knows which representation its QoS allows: False = XCDR1, True = XCDR2, None = the type's
         # own (XCDR2 for an appendable type), exactly as DataWriter.write decides.
         use_version_2 = getattr(writer, "_use_version_2", None)
@@ -233,9 +232,7 @@ class FrameWriter:
 
     def write_serialized(self, view: memoryview) -> None:
         """Write a complete serialized frame (as :meth:`build_pattern_frame` makes) on DDS."""
-        result = ddspy_write(self.writer._ref, view)
-        if result < 0:
-            raise DDSException(result, f"Occurred while writing a frame in {self.writer!r}")
+        self._raw.write(view)
 
     def _write_span(self, view: memoryview, start: int, id: int, seqnum: int) -> int:
         stamp = time.time_ns()
@@ -245,60 +242,16 @@ class FrameWriter:
         return stamp
 
 
-class _IoVec(ctypes.Structure):
-    _fields_ = [("base", ctypes.c_void_p), ("length", ctypes.c_size_t)]  # struct iovec (ddsrt_iovec_t)
-
-
-class _SerdataAccess:
-    """Cyclone's C functions that lend a taken sample's serialized bytes (all exported by libddsc 11)."""
-
-    def __init__(self) -> None:
-        from cyclonedds.internal import dds_c_t, load_cyclonedds
-
-        library = load_cyclonedds()
-        self.sample_info = dds_c_t.sample_info
-        self.takecdr = library.dds_takecdr
-        self.takecdr.argtypes = [ctypes.c_int32, ctypes.POINTER(ctypes.c_void_p), ctypes.c_uint32,
-                                 ctypes.POINTER(dds_c_t.sample_info), ctypes.c_uint32]
-        self.takecdr.restype = ctypes.c_int32
-        self.size = library.ddsi_serdata_size
-        self.size.argtypes = [ctypes.c_void_p]
-        self.size.restype = ctypes.c_uint32
-        self.to_ser_ref = library.ddsi_serdata_to_ser_ref
-        self.to_ser_ref.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_size_t, ctypes.POINTER(_IoVec)]
-        self.to_ser_ref.restype = ctypes.c_void_p
-        self.to_ser_unref = library.ddsi_serdata_to_ser_unref
-        self.to_ser_unref.argtypes = [ctypes.c_void_p, ctypes.POINTER(_IoVec)]
-        self.to_ser_unref.restype = None
-        self.unref = library.ddsi_serdata_unref
-        self.unref.argtypes = [ctypes.c_void_p]
-        self.unref.restype = None
-
-
-_serdata_access: _SerdataAccess | None = None
-
-
-def _serdata() -> _SerdataAccess | None:
-    """The C functions, or None when this Cyclone build lacks them (then frames are taken with a copy)."""
-    global _serdata_access
-    if _serdata_access is None:
-        try:
-            _serdata_access = _SerdataAccess()
-        except (AttributeError, ImportError, OSError):
-            return None
-    return _serdata_access
-
-
 class TakenFrames:
     """Frames taken in one call, valid inside a ``with`` block.
 
-    Zero-copy: each frame's ``data`` is a view of the sample Cyclone received and reassembled, lent by
-    ``dds_takecdr`` + ``ddsi_serdata_to_ser_ref``; leaving the block releases the views (using one afterwards
-    raises ValueError instead of reading freed memory) and returns the samples to Cyclone. Cyclone Python's own
-    take copies each sample twice more (into a zeroed buffer, then into a ``bytes``): about 1 ms per 4 MiB frame.
+    Zero-copy: each frame's ``data`` is a view of a lent buffer (the sample Cyclone received and reassembled, lent by
+    :meth:`RawReader.lend`, or a shared-memory sample); leaving the block releases the views, then ``release``
+    returns the buffers to their owner. Cyclone Python's own take copies each sample twice more (into a zeroed
+    buffer, then into a ``bytes``): about 1 ms per 4 MiB frame.
     """
 
-    def __init__(self, frames: list[Frame], release: Callable[[], None] | None = None):
+    def __init__(self, frames: list[Frame], release: Callable[[], None]):
         self.frames = frames
         self._release = release
 
@@ -309,28 +262,9 @@ class TakenFrames:
         self.close()
 
     def close(self) -> None:
-        if self._release is not None:
-            release, self._release = self._release, None
-            release()
-
-
-def release_views(frames: list[Frame], views: list[memoryview], arrays: list[ctypes.Array[ctypes.c_char]]) -> None:
-    """Release the views of lent buffers (``arrays``) before the buffers go back to their owner.
-
-    Every view of a lent buffer (a memoryview, a numpy array made from one) keeps its ctypes array alive. With ours
-    released, the list, the comprehension's variable and getrefcount's argument must be the only references left;
-    otherwise something still reads the sample, and giving it back would let that read freed (or rewritten) memory:
-    keep it (a leak) and say so.
-    """
-    for frame in frames:
-        frame.data.release()
-    for view in views:
-        view.release()
-    views.clear()
-    if any(count > 3 for count in [sys.getrefcount(array) for array in arrays]):
-        raise RuntimeError("a taken frame's data is still in use after its 'with' block; copy it first "
-                           "(bytes(frame.data)) to keep it")
-    arrays.clear()
+        for frame in self.frames:
+            frame.data.release()
+        self._release()
 
 
 class FrameReader:
@@ -340,54 +274,18 @@ class FrameReader:
     def __init__(self, reader: DataReader[Any], zero_copy: bool = True):
         self.reader = reader
         self.codec = FrameCodec(reader.topic.data_type)
-        self._access = _serdata() if zero_copy else None
+        self._raw = RawReader(reader, zero_copy)
 
     @property
     def zero_copy(self) -> bool:
-        return self._access is not None
+        return self._raw.zero_copy
 
     def take(self, limit: int = 16) -> TakenFrames:
         """Take up to ``limit`` samples: ``with reader.take() as frames: ...`` (samples without data are skipped)."""
-        if self._access is None:
-            return self._take_copies(limit)
-        access = self._access
-        pointers = (ctypes.c_void_p * limit)()
-        infos = (access.sample_info * limit)()
-        count = access.takecdr(self.reader._ref, pointers, limit, infos, _ANY_STATE)
-        if count < 0:
-            raise DDSException(count, f"Occurred while taking frames in {self.reader!r}")
-        frames: list[Frame] = []
-        lent: list[tuple[int, _IoVec]] = []
-        arrays: list[ctypes.Array[ctypes.c_char]] = []
-        views: list[memoryview] = []
-        samples = [pointers[index] for index in range(count)]
+        lent = self._raw.lend(limit)
         try:
-            for index in range(count):
-                if not infos[index].valid_data:
-                    continue
-                pointer = pointers[index]
-                iov = _IoVec()
-                access.to_ser_ref(pointer, 0, access.size(pointer), ctypes.byref(iov))
-                lent.append((pointer, iov))
-                arrays.append((ctypes.c_char * iov.length).from_address(iov.base))
-                views.append(memoryview(arrays[-1]).cast("B"))
-                frames.append(self.codec.decode(views[-1]))
+            frames = [self.codec.decode(sample.data) for sample in lent.samples if sample.kind is SampleKind.DATA]
         except BaseException:
-            self._give_back(frames, views, arrays, lent, samples)
+            lent.close()
             raise
-        return TakenFrames(frames, lambda: self._give_back(frames, views, arrays, lent, samples))
-
-    def _give_back(self, frames: list[Frame], views: list[memoryview], arrays: list[ctypes.Array[ctypes.c_char]],
-                   lent: list[tuple[int, _IoVec]], samples: list[int]) -> None:
-        assert self._access is not None
-        release_views(frames, views, arrays)
-        for pointer, iov in lent:
-            self._access.to_ser_unref(pointer, ctypes.byref(iov))
-        for pointer in samples:
-            self._access.unref(pointer)
-
-    def _take_copies(self, limit: int) -> TakenFrames:
-        result = ddspy_take(self.reader._ref, _ANY_STATE, limit)
-        if isinstance(result, int):
-            raise DDSException(result, f"Occurred while taking frames in {self.reader!r}")
-        return TakenFrames([self.codec.decode(serialized) for serialized, info in result if info.valid_data])
+        return TakenFrames(frames, lent.close)

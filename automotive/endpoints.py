@@ -12,7 +12,7 @@ from typing import Any, TypeVar
 from cyclonedds.core import DDSException
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter, Publisher
-from cyclonedds.qos import DataWriterQos, Policy, Qos
+from cyclonedds.qos import DataReaderQos, DataWriterQos, Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
@@ -93,9 +93,13 @@ class Databus:
         self._endpoints.append(writer)
         return writer
 
-    def reader(self, topic_name: str, data_type: type[T], profile: str,
-               hook: EventHook | None = None) -> DataReader[T]:
+    def reader(self, topic_name: str, data_type: type[T], profile: str, hook: EventHook | None = None,
+               overrides: tuple[Any, ...] = ()) -> DataReader[T]:
+        """A reader with the profile's reader QoS; ``overrides`` are policies that replace the profile's (a
+        recorder keeps every sample: History.KeepAll)."""
         qos = self.profiles.reader_qos(self.library, profile)
+        if overrides:
+            qos = DataReaderQos(*overrides, base=qos)
         topic = self.topic(topic_name, data_type)
         exclusive = Policy.Ownership.Exclusive in qos
         reader = DataReader(self.subscriber, topic, qos=qos, listener=self._listener(topic_name, hook, exclusive))

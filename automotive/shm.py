@@ -34,9 +34,10 @@ from typing import Any
 import iceoryx2 as iox2
 from cyclonedds.qos import Policy, Qos
 
-from automotive.camera import Frame, FrameCodec, FrameWriter, TakenFrames, release_views
+from automotive.camera import Frame, FrameCodec, FrameWriter, TakenFrames
 from automotive.errors import ConfigError
 from automotive.properties import Properties
+from automotive.rawsample import release_lent_views
 
 TRANSPORTS = ("dds", "shm")
 DEFAULT_PREFIX = "iox2_"  # iceoryx2's own default prefix
@@ -304,7 +305,10 @@ class SharedFrameReader:
 
     def _release(self, frames: list[Frame], views: list[memoryview], arrays: list[ctypes.Array[ctypes.c_char]],
                  samples: list[Any]) -> None:
-        release_views(frames, views, arrays)  # refuses while a view is still held: the publisher would reuse it
+        for frame in frames:
+            frame.data.release()
+        # refuses while a view is still held: the publisher would reuse the memory
+        release_lent_views(views, arrays, "a taken frame's data", "bytes(frame.data)")
         for index, sample in enumerate(samples):
             sample.delete()
             if index < len(frames):  # a consumed frame: the publisher's flow control counts it

@@ -1,0 +1,109 @@
+"""Live view: a Foxglove WebSocket server that forwards every flow of the databus, as received, to the Foxglove app.
+
+Data flow:  every topic of the system (automotive.flows; --topics to choose), each read with the reader side of its
+writer's QoS profile keeping only the newest sample  -->  serialized samples, never deserialized
+(automotive.rawsample)  -->  one Foxglove channel per topic (message encoding ``cdr``, the recorder's schemas)  -->
+the Foxglove WebSocket server (foxglove-sdk) on ws://HOST:PORT
+
+Open it in Foxglove with "Open connection" > "Foxglove WebSocket" > ws://127.0.0.1:8765. The LiDAR cloud shows in
+the 3D panel, every other flow in the Raw Messages and Plot panels. A viewer must never slow the databus: its readers
+keep only the newest sample of each instance (a reliable writer is never held back by the bridge), and each client
+gets at most config.backlog messages queued (the oldest dropped first), so a slow or stuck client costs bounded
+memory. Disposals and unregistrations are not forwarded (a Foxglove channel carries samples of one type).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+import foxglove
+from cyclonedds.qos import Policy
+from foxglove.websocket import ChannelView, Client, ServerListener
+
+from automotive.app import Application, run
+from automotive.errors import ConfigError
+from automotive.flows import Flow, channel_metadata, select, system_flows
+from automotive.rawsample import RawReader, SampleKind
+
+TAKE_LIMIT = 16
+
+
+class SubscriptionLog(ServerListener):
+    """Says when a client subscribes to or leaves a topic (called from the server's own threads)."""
+
+    def __init__(self, app: Application):
+        self.app = app
+        self.subscriptions = 0
+
+    def on_subscribe(self, client: Client, channel: ChannelView) -> None:
+        self.subscriptions += 1
+        self.app.log.info("client %d subscribed to %s", client.id, channel.topic)
+
+    def on_unsubscribe(self, client: Client, channel: ChannelView) -> None:
+        self.subscriptions -= 1
+        self.app.log.info("client %d unsubscribed from %s", client.id, channel.topic)
+
+
+def foxglove_channel(app: Application, flow: Flow) -> foxglove.Channel:
+    schema = flow.schema
+    return foxglove.Channel(flow.topic, schema=foxglove.Schema(name=schema.name, encoding=schema.encoding,
+                                                               data=schema.data),
+                            message_encoding="cdr",
+                            metadata=channel_metadata(flow, app.profiles.writer_qos(app.library, flow.profile)))
+
+
+def body(app: Application) -> None:
+    flows = select(system_flows(), [name for name in app.args.topics.split(",") if name] if app.args.topics else [])
+    backlog = app.props.get_int("config.backlog", 16, minimum=1)
+    port: int = app.args.port
+    if not 0 <= port <= 65535:
+        raise ConfigError(f"--port {port}: expected 0..65535")
+    listener = SubscriptionLog(app)
+    # Readers first: the channels appear to clients at once, the data as soon as writers match.
+    readers = [(flow.topic, RawReader(app.bus.reader(flow.topic, flow.data_type, flow.profile,
+                                                     overrides=(Policy.History.KeepLast(1),))),
+                foxglove_channel(app, flow)) for flow in flows]
+    try:
+        server = foxglove.start_server(name="automotive databus", host=app.args.host, port=port,
+                                       message_backlog_size=backlog, server_listener=listener)
+    except Exception as error:  # foxglove-sdk raises its own error types, e.g. when the port is taken
+        raise ConfigError(f"--host {app.args.host} --port {port}: cannot start the WebSocket server ({error})") \
+            from None
+    app.log.info("Foxglove WebSocket server on ws://%s:%d (%d topics, at most %d messages queued per client)",
+                 app.args.host, server.port, len(readers), backlog)
+    forwarded = {flow.topic: 0 for flow in flows}
+    next_status = time.monotonic() + 1.0
+    try:
+        for _ in app.wake_ups(app.waitset(*(raw.reader for _, raw, _ in readers)), timeout_s=0.5):
+            for topic, raw, channel in readers:
+                for sample, receive_ns in raw.drain(TAKE_LIMIT):
+                    if sample.kind is SampleKind.DATA:
+                        channel.log(bytes(sample.data), log_time=receive_ns)
+                        forwarded[topic] += 1
+                        app.tick()
+            if time.monotonic() >= next_status:
+                next_status = time.monotonic() + 1.0
+                app.log.info("forwarded %s; %d subscription(s)", status(forwarded), listener.subscriptions)
+    finally:
+        server.stop()
+    app.log.info("forwarded in total %s", status(forwarded))
+
+
+def status(forwarded: dict[str, int]) -> str:
+    return " ".join(f"{topic}={count}" for topic, count in forwarded.items() if count) or "nothing yet"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, default=8765, help="TCP port (default 8765; 0: any free port)")
+    parser.add_argument("--topics", default="", help="comma-separated topics to forward (default: every topic)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run("bridge", __doc__ or "", body, argv, add_arguments)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
