@@ -58,10 +58,10 @@ def make_bus(args: argparse.Namespace) -> Databus:
 
 
 def write(args: argparse.Namespace) -> int:
+    created = time.monotonic()  # discovery starts with the participant
     bus = make_bus(args)
     writer = bus.writer("AlertTopic", DriverAlerts, "HMI")
-    created = time.monotonic()
-    deadline = created + args.timeout
+    deadline = time.monotonic() + args.timeout
     while len(writer.get_matched_subscriptions()) < args.readers:
         if time.monotonic() > deadline:
             print(f"only {len(writer.get_matched_subscriptions())} of {args.readers} readers matched", flush=True)
