@@ -121,27 +121,22 @@ class NetworkConfig:
         if self.mode == PEERS:
             return self._peers_xml(plan or self.peer_plan())
         if self.mode == LOOPBACK:
-            interfaces, multicast = _interfaces_xml("lo"), False
-        else:
-            interfaces, multicast = _interfaces_xml(self.interface) if self.interface else "", True
-        discovery = ""
-        if self.mode == LOOPBACK:
             discovery = (f'<Discovery><Peers><Peer address="{LOCALHOST}"/></Peers>'
                          f"{self._participant_index_xml()}</Discovery>")
-        return self._domain_xml(interfaces, multicast, discovery)
+            return self._domain_xml(_interfaces_xml(_interface_xml("lo")), False, discovery)
+        return self._domain_xml(_interfaces_xml(_interface_xml(self.interface)) if self.interface else "", True, "")
 
     def _peers_xml(self, plan: PeerPlan) -> str:
         interface = self.interface or plan.route_source
-        if not interface:
-            interfaces = ('<Interfaces><NetworkInterface autodetermine="true" priority="10"/>'
-                          f'<NetworkInterface address="{LOCALHOST}"/></Interfaces>')
-        elif _is_loopback(interface):
-            interfaces = _interfaces_xml(interface)
+        if not interface and not any(not _is_loopback(name) for _, name in socket.if_nameindex()):
+            interface = "lo"  # a host without a network: Cyclone would pick loopback twice
+        if interface and _is_loopback(interface):
+            interfaces = _interfaces_xml(_interface_xml(interface))
         else:
             # The chosen interface first (its address is announced first), loopback beside it (see module doc).
-            attribute = "address" if _is_address(interface) else "name"
-            interfaces = (f'<Interfaces><NetworkInterface {attribute}={quoteattr(interface)} priority="10"/>'
-                          f'<NetworkInterface address="{LOCALHOST}"/></Interfaces>')
+            chosen = _interface_xml(interface, 'priority="10"') if interface else \
+                '<NetworkInterface autodetermine="true" priority="10"/>'
+            interfaces = _interfaces_xml(chosen + _interface_xml(LOCALHOST))
         this_host = dict.fromkeys((LOCALHOST, *plan.own))
         peers = "".join(f"<Peer address={quoteattr(peer)}/>" for peer in plan.remote)
         peers += "".join(f'<Peer address={quoteattr(peer)} PruneDelay="inf"/>' for peer in this_host)
@@ -189,9 +184,14 @@ def _valid_host(text: str) -> bool:
     return _is_address(text) or bool(_HOST_NAME.match(text))
 
 
-def _interfaces_xml(interface: str) -> str:
+def _interface_xml(interface: str, attributes: str = "") -> str:
+    """One NetworkInterface element, the interface given by name or by address."""
     attribute = "address" if _is_address(interface) else "name"
-    return f"<Interfaces><NetworkInterface {attribute}={quoteattr(interface)}/></Interfaces>"
+    return f"<NetworkInterface {attribute}={quoteattr(interface)}{' ' + attributes if attributes else ''}/>"
+
+
+def _interfaces_xml(elements: str) -> str:
+    return f"<Interfaces>{elements}</Interfaces>"
 
 
 def _is_loopback(interface: str) -> bool:
