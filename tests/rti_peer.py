@@ -233,11 +233,12 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="One RTI Connext participant in a process of its own.")
     parser.add_argument("--domain", type=int, required=True)
     parser.add_argument("--initial-peers", default="", help="comma-separated hosts (default: loopback only)")
-    parser.add_argument("--read", default="", help="comma-separated endpoint names to read")
+    parser.add_argument("--read", default="", metavar="NAME[:PROFILE],...",
+                        help="endpoints to read, each with its default reader profile or the one named")
     parser.add_argument("--write", action="append", default=[], metavar="NAME=JSON",
                         help="an endpoint to write and its sample as JSON, written every 0.2 s (repeatable)")
     args = parser.parse_args(argv)
-    readers = [name for name in args.read.split(",") if name]
+    readers = dict(item.partition(":")[::2] for item in args.read.split(",") if item)
     samples: dict[str, dict[str, Any]] = {}
     for item in args.write:
         name, _, sample = item.partition("=")

@@ -261,7 +261,10 @@ def test_rti_participant_whose_initial_peers_name_only_the_other_host(hosts: Two
     a, b = hosts.a, hosts.b
     rti = hosts.start(b, "rti_peer", [
         sys.executable, str(ROOT / "tests" / "rti_peer.py"), "--domain", str(hosts.domain_id),
-        "--initial-peers", ADDRESS_A, "--read", "Vision,SensorObjects,PlatformStatus,PlatformControl,Alerts",
+        # The participant also reads what it writes: its alert reader keeps 16 samples (not the HMI profile's
+        # latest one), so that its own alert, written every 0.2 s, does not replace ours before it is taken.
+        "--initial-peers", ADDRESS_A,
+        "--read", "Vision,SensorObjects,PlatformStatus,PlatformControl,Alerts:ReliableReader",
         "--write", 'Vision={"id": 42}', "--write", 'PlatformControl={"sample_id": 4242}',
         "--write", 'Alerts={"frontCollision": true}'])
     hosts.app(a, "vision")
