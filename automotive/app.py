@@ -34,6 +34,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
 from automotive.bounds import BoundError
+from automotive.cli import ArgumentParser
 from automotive.endpoints import Databus
 from automotive.errors import ConfigError
 from automotive.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, user_uri
@@ -57,7 +58,7 @@ def default_properties_path(name: str) -> Path:
 
 
 def build_parser(name: str, description: str, add_arguments: ArgumentAdder | None = None) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=name, description=description)
+    parser = ArgumentParser(prog=name, description=description)
     parser.add_argument("--properties", type=Path, default=None,
                         help=f"properties file (default: properties/{name}.properties)")
     parser.add_argument("-D", dest="overrides", action="append", default=[], metavar="KEY=VALUE",

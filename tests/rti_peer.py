@@ -9,7 +9,8 @@ the test's domain holding only the writers and readers the test asks for, so mat
         peer.write("Vision", {"id": 1, "timestamp": {"s": 1, "ns": 2}, "objects": []})
         alerts = peer.take_until("Alerts", 1)           # samples as dicts, bounded wait
 
-Endpoint names (see ENDPOINTS): Circle, Lidar, Alerts, Vision, PlatformControl, PlatformStatus, SensorObjects.
+Endpoint names (see ENDPOINTS): Circle, Lidar, Alerts, Vision, PlatformControl, PlatformStatus, SensorObjects,
+Camera.
 RTI stays on loopback (UDPv4 only, no multicast, initial peer 127.0.0.1): see the Loopback QoS profile. With
 ``initial_peers`` it uses the interfaces of its network namespace instead and announces itself only to those hosts
 (the Unicast profile), as RTI users configure a network without multicast.
@@ -63,6 +64,7 @@ ENDPOINTS: dict[str, Endpoint] = {
     "PlatformControl": Endpoint("PlatformControl", "Writer", "BestEffortReader"),
     "PlatformStatus": Endpoint("PlatformStatus", "Writer", "BestEffortReader"),
     "SensorObjects": Endpoint("SensorObjects", "Writer", "BestEffortReader"),
+    "Camera": Endpoint("CameraImageData", "Writer", "DefaultReader"),
 }
 
 # Each peer gets its own participant library name: RTI keeps XML definitions per process.
@@ -109,7 +111,8 @@ class RtiPeer:
 
     ``writers``/``readers`` are endpoint names (keys of ENDPOINTS), or mappings from endpoint name to a QoS
     profile of the RtiPeerQos library: "Writer", "WriterXcdr2" (writes XCDR2), "ReliableReader",
-    "BestEffortReader", "ReliableReaderXcdr2"/"BestEffortReaderXcdr2" (also accept XCDR2), "Alerts".
+    "BestEffortReader", "ReliableReaderXcdr2"/"BestEffortReaderXcdr2" (also accept XCDR2), "Alerts",
+    "DefaultReader" (RTI's defaults: what an application that names no profile gets).
     Samples are dicts as RTI Connector gives them: nested dicts for structs, lists for sequences, arrays and octet
     sequences (a list of ints), ints for enums.
     """

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import re
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -67,3 +69,20 @@ def test_missing_required_property(apps, tmp_path: Path) -> None:  # type: ignor
 ])
 def test_bad_properties(apps, app: str, args: list[str], pattern: str) -> None:  # type: ignore[no-untyped-def]
     assert_one_line_error(apps.run(app, *args), rf"^{app}: .*{pattern}")
+
+
+# The scripts the README prints, started as printed: through their shebang, with whatever python3 the PATH has
+# (not the project's .venv); each installs the project if needed and restarts itself in .venv.
+README_SCRIPTS = ["launch", "bench-lidar", "bench-large-data", "bench-scale", "bench-fastpath"]
+
+
+@pytest.mark.parametrize("script", README_SCRIPTS)
+def test_scripts_run_as_printed_and_refuse_bad_arguments_in_one_line(script: str) -> None:
+    env = {key: value for key, value in os.environ.items() if key not in ("VIRTUAL_ENV", "PYTHONPATH")}
+    env["PATH"] = os.pathsep.join(part for part in env.get("PATH", "").split(os.pathsep)
+                                  if Path(part).resolve() != (ROOT / ".venv" / "bin").resolve())
+    command = [str(ROOT / "scripts" / script)]
+    usage = subprocess.run([*command, "--help"], capture_output=True, text=True, env=env, timeout=120)
+    assert usage.returncode == 0 and f"usage: scripts/{script}" in usage.stdout, usage.stdout + usage.stderr
+    result = subprocess.run([*command, "--no-such-option"], capture_output=True, text=True, env=env, timeout=120)
+    assert_one_line_error(result, rf"^scripts/{script}: unrecognized arguments: --no-such-option")

@@ -24,7 +24,7 @@ from cyclonedds.idl import IdlStruct
 from cyclonedds.idl._machinery import PlainCdrV2SequenceOfPrimitiveMachine
 from cyclonedds.idl._support import Endianness
 from cyclonedds.pub import DataWriter
-from cyclonedds.qos import DataReaderQos, Policy, Qos
+from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from dds_helpers import make_bus, take_samples, wait_until
@@ -312,11 +312,7 @@ def test_lidar_writes_and_reads_go_through_the_fast_path_over_dds(no_per_element
     bus = make_bus(DOMAIN_LOOPBACK)
     try:
         writer = bus.writer("rt/LidarTopic", PointCloud2_, "Lidar")
-        # The Lidar profile gives its writer a latency budget and its reader none (0), which Cyclone finds
-        # incompatible; the reader here requests the writer's budget so that only the fast path is under test.
-        reader_qos = DataReaderQos(writer.get_qos()[Policy.LatencyBudget],
-                                   base=bus.profiles.reader_qos(bus.library, "Lidar"))
-        reader = DataReader(bus.subscriber, bus.topic("rt/LidarTopic", PointCloud2_), qos=reader_qos)
+        reader = bus.reader("rt/LidarTopic", PointCloud2_, "Lidar")
         wait_until(lambda: writer.get_publication_matched_status().current_count > 0, what="writer matched")
         assert fastpath.uses_fast_path(PointCloud2_, "data_")
         before = fastpath.counts(PointCloud2_, "data_")

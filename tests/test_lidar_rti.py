@@ -37,10 +37,10 @@ EXTRA_PROFILES = """
       <datawriter_qos/>
     </qos_profile>
 
-    <!-- A reader of our LiDAR. Latency budget is a request-offered policy: our Lidar writer offers 1 ms (a budget
-         above zero makes Cyclone hand the sending to a separate thread: RTI's asynchronous publisher), so a reader
-         must request at least that. RTI's default (and ROS 2's, and RViz2's) is 0: such a reader never matches;
-         our writer reports "incompatible QoS offered to a reader: LATENCY_BUDGET". -->
+    <!-- A reader of our opt-in LidarAsync writer. Latency budget is a request-offered policy: that writer offers
+         1 ms (a budget above zero makes Cyclone hand the sending to a separate thread: RTI's asynchronous
+         publisher), so a reader must request at least that. RTI's default (and ROS 2's, and RViz2's) is 0: such a
+         reader never matches it; the writer reports "incompatible QoS offered to a reader: LATENCY_BUDGET". -->
     <qos_profile name="LidarReader" base_name="ReliableReader">
       <datareader_qos>
         <latency_budget><duration><sec>0</sec><nanosec>100000000</nanosec></duration></latency_budget>
@@ -117,8 +117,8 @@ def cloud_dict(sample: dict[str, Any]) -> dict[str, Any]:
 
 
 @pytest.mark.parametrize("our_profile,rti_profile", [
-    ("Lidar", "LidarReader"),  # our asynchronous writer: the reader must accept its latency budget
-    ("LidarInterop", "ReliableReader"),  # a reader as the original applications and RViz2 have it: budget 0
+    ("Lidar", "ReliableReader"),  # the shipped profile; a reader as the original applications and RViz2 have it
+    ("LidarAsync", "LidarReader"),  # the opt-in asynchronous writer: the reader must accept its latency budget
 ])
 def test_rti_reader_receives_our_point_clouds_intact(apps, domain_id: int, bus: Databus,  # type: ignore[no-untyped-def]
                                                      rti_xml: Path, our_profile: str, rti_profile: str) -> None:

@@ -28,23 +28,23 @@ def policy(qos: Qos, scope: str) -> object:
 
 def test_one_library_with_a_profile_per_data_flow(profiles: QosProfiles) -> None:
     assert sorted(profiles.names) == sorted(f"{LIBRARY}::{name}" for name in
-                                            ["Lidar", "LidarInterop", "HMI", *BEST_EFFORT_FLOWS, "Camera",
-                                                             "Shapes", "LidarView"])
+                                            ["Lidar", "LidarAsync", "HMI", *BEST_EFFORT_FLOWS, "Camera",
+                                                             "CameraAsync", "Shapes", "LidarView"])
 
 
-def test_lidar_reliable_asynchronous_with_deadlines(profiles: QosProfiles) -> None:
+def test_lidar_reliable_synchronous_with_deadlines(profiles: QosProfiles) -> None:
     writer, reader = profiles.writer_qos(LIBRARY, "Lidar"), profiles.reader_qos(LIBRARY, "Lidar")
     assert isinstance(policy(writer, "Reliability"), Policy.Reliability.Reliable)
     assert isinstance(policy(reader, "Reliability"), Policy.Reliability.Reliable)
-    assert policy(writer, "LatencyBudget").budget > 0  # Cyclone's asynchronous write
+    assert Policy.LatencyBudget not in writer  # matches readers with the default budget of 0 (RViz2, RTI apps)
     assert policy(writer, "Deadline").deadline == 1 * SECOND
     assert policy(reader, "Deadline").deadline == 2 * SECOND
 
 
-def test_lidar_interop_is_the_same_flow_with_a_synchronous_writer(profiles: QosProfiles) -> None:
-    writer, reader = profiles.writer_qos(LIBRARY, "LidarInterop"), profiles.reader_qos(LIBRARY, "LidarInterop")
+def test_lidar_async_is_the_same_flow_with_an_asynchronous_writer(profiles: QosProfiles) -> None:
+    writer, reader = profiles.writer_qos(LIBRARY, "LidarAsync"), profiles.reader_qos(LIBRARY, "LidarAsync")
     assert isinstance(policy(writer, "Reliability"), Policy.Reliability.Reliable)
-    assert Policy.LatencyBudget not in writer  # matches readers with the default budget of 0 (RViz2, RTI apps)
+    assert policy(writer, "LatencyBudget").budget > 0  # Cyclone's asynchronous write
     assert policy(writer, "Deadline").deadline == 1 * SECOND
     assert policy(reader, "Deadline").deadline == 2 * SECOND
 
@@ -67,11 +67,14 @@ def test_best_effort_flows_with_deadlines_and_reader_history(profiles: QosProfil
     assert policy(reader, "History") == Policy.History.KeepLast(100)
 
 
-def test_camera_reliable_asynchronous(profiles: QosProfiles) -> None:
-    writer, reader = profiles.writer_qos(LIBRARY, "Camera"), profiles.reader_qos(LIBRARY, "Camera")
+@pytest.mark.parametrize("name,asynchronous", [("Camera", False), ("CameraAsync", True)])
+def test_camera_reliable_keep_all_with_a_bounded_window(profiles: QosProfiles, name: str, asynchronous: bool) -> None:
+    writer, reader = profiles.writer_qos(LIBRARY, name), profiles.reader_qos(LIBRARY, name)
     assert isinstance(policy(writer, "Reliability"), Policy.Reliability.Reliable)
     assert isinstance(policy(reader, "Reliability"), Policy.Reliability.Reliable)
-    assert policy(writer, "LatencyBudget").budget > 0
+    assert policy(writer, "History") == Policy.History.KeepAll
+    assert policy(writer, "ResourceLimits").max_samples == 8
+    assert (Policy.LatencyBudget in writer) == asynchronous
 
 
 def test_writers_offer_xcdr1_for_rti_and_readers_accept_both(profiles: QosProfiles) -> None:

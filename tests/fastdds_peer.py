@@ -1,0 +1,97 @@
+"""An eProsima Fast DDS peer for interoperability tests: the C++ program of tests/fastdds, built here, run as a process.
+
+The program is built from its sources on first use in a test session (``make`` in tests/fastdds: fastddsgen
+generates the type code from tests/fastdds/automotive.idl, then g++ compiles it against Debian's Fast DDS 2.9) into
+build/fastdds/, and rebuilt only when a source changed. Its samples come back as JSON lines:
+
+    peer = FastDdsPeer.read(apps, ["VisionTopic", "AlertTopic"], domain_id, count=3)
+    samples = peer.wait_samples("VisionTopic", 3)      # dicts, member names as in the IDL
+    circle = FastDdsPeer.write_circle(apps, domain_id, "ORANGE", 216, 135, 60)
+
+Octet arrays and sequences arrive as {"size", "crc32"} (zlib's CRC-32), with "base64" too when read with data=True.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import re
+import shutil
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+SOURCES = ROOT / "tests" / "fastdds"
+BUILD = ROOT / "build" / "fastdds"
+PROGRAM = BUILD / "fastdds_peer"
+PACKAGES = "libfastrtps-dev libfastcdr-dev fastddsgen g++ make"
+BUILD_TIMEOUT = 600.0  # a build from nothing takes about 10 s on an idle 2-core machine; generous under load
+
+
+def build() -> Path:
+    """Build (or bring up to date) the peer; fail the test with what is missing when Fast DDS is not installed."""
+    missing = [tool for tool in ("fastddsgen", "make", "g++") if shutil.which(tool) is None]
+    if missing:
+        pytest.fail(f"the Fast DDS test peer cannot be built: {', '.join(missing)} not found; "
+                    f"scripts/setup installs the Debian packages {PACKAGES}", pytrace=False)
+    started = time.monotonic()
+    result = subprocess.run(["make", "-s", "-j2", "-C", str(SOURCES), f"OUT={BUILD}"], capture_output=True,
+                            text=True, timeout=BUILD_TIMEOUT)
+    if result.returncode != 0:
+        hint = "" if Path("/usr/include/fastdds").is_dir() else \
+            f" (no Fast DDS headers: scripts/setup installs the Debian packages {PACKAGES})"
+        pytest.fail(f"building the Fast DDS test peer failed{hint}:\n{result.stdout}{result.stderr[-4000:]}",
+                    pytrace=False)
+    elapsed = time.monotonic() - started
+    if elapsed > 1:
+        print(f"built {PROGRAM.relative_to(ROOT)} in {elapsed:.1f} s")
+    return PROGRAM
+
+
+class FastDdsPeer:
+    """One running fastdds_peer process (started through the tests' ``apps`` runner, stopped with the test)."""
+
+    def __init__(self, process: Any):
+        self.process = process
+
+    @classmethod
+    def read(cls, apps: Any, topics: list[str], domain_id: int, count: int = 0, qos: str = "default",
+             data: bool = False, name: str = "fastdds-reader") -> FastDdsPeer:
+        command = [str(build()), "read", *topics, "--domain", str(domain_id), "--count", str(count), "--qos", qos]
+        return cls(apps.start_command(name, command + (["--data"] if data else [])))
+
+    @classmethod
+    def write_circle(cls, apps: Any, domain_id: int, color: str, x: int, y: int, size: int) -> FastDdsPeer:
+        command = [str(build()), "write", "Circle", "--domain", str(domain_id), "--color", color,
+                   "--x", str(x), "--y", str(y), "--size", str(size)]
+        return cls(apps.start_command("fastdds-writer", command))
+
+    def wait_matched(self, topic: str, what: str = "writer", timeout: float = 60.0) -> None:
+        self.process.wait_for(rf"^matched: [1-9]\d* {what}\(s\) on {re.escape(topic)}$", timeout)
+
+    def samples(self, topic: str) -> list[dict[str, Any]]:
+        """Every sample of ``topic`` printed so far, in arrival order."""
+        lines = [json.loads(line) for line in list(self.process.lines) if line.startswith("{")]
+        return [line["sample"] for line in lines if line["topic"] == topic]
+
+    def wait_samples(self, topic: str, count: int, timeout: float = 60.0) -> list[dict[str, Any]]:
+        self.process.wait_for(rf'^\{{"topic": "{re.escape(topic)}"', timeout, count)
+        return self.samples(topic)[:count]
+
+    @property
+    def output(self) -> str:
+        return str(self.process.output)
+
+    def stop(self) -> int:
+        return int(self.process.stop())
+
+
+def octets(value: dict[str, Any]) -> bytes:
+    """The bytes of an octet array or sequence read with data=True."""
+    data = base64.b64decode(value["base64"])
+    assert len(data) == value["size"]
+    return data
