@@ -221,15 +221,17 @@ def _wait(condition: Callable[[], bool], timeout: float, what: str) -> None:
 
 # --- as a process of its own (tests/test_multihost.py runs it inside a network namespace) ----------------------------
 
-def _sample_label(name: str, sample: Mapping[str, Any]) -> str:
-    """What tells one writer's samples from another's in the printed lines."""
+def _sample_label(name: str, sample: Mapping[str, Any], written: Mapping[str, Mapping[str, Any]]) -> tuple[str, str]:
+    """What tells one writer's samples from another's in the printed lines: (kind, text); one line per kind."""
     if name == "Vision":
-        return f"id={sample['id']}"
+        return f"id={sample['id']}", f"id={sample['id']}"
     if name == "PlatformControl":
-        return f"sample_id={sample['sample_id']}"
+        own = sample["sample_id"] == written.get(name, {}).get("sample_id")
+        return ("own" if own else "other"), f"sample_id={sample['sample_id']}"
     if name == "Alerts":
-        return ",".join(flag for flag, value in sample.items() if value) or "none"
-    return "any"
+        flags = ",".join(flag for flag, value in sample.items() if value) or "none"
+        return flags, flags
+    return "any", "any"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -257,7 +259,7 @@ def main(argv: list[str] | None = None) -> int:
         print(error, file=sys.stderr)
         return 2
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # close the participant on the way out
-    seen: set[str] = set()
+    seen: set[tuple[str, str]] = set()
     matched: dict[str, int] = {}
     print("rti peer running", flush=True)
     try:
@@ -274,10 +276,10 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"reader {name} matched {count} writer(s)", flush=True)
                 matched[f"reader {name}"] = count
                 for sample in peer.take(name):
-                    line = f"received {name} {_sample_label(name, sample)}"
-                    if line not in seen:
-                        seen.add(line)
-                        print(line, flush=True)
+                    kind, text = _sample_label(name, sample, samples)
+                    if (name, kind) not in seen:
+                        seen.add((name, kind))
+                        print(f"received {name} {text}", flush=True)
             time.sleep(0.2)
     finally:
         peer.close()
