@@ -5,11 +5,11 @@ is honoured: when it is set and no network option was given explicitly, it is us
 
 Unicast peers: each listed host is probed at every participant index (a UDP port) for participant announcements.
 The peer list may name only the other hosts (as RTI users write initial peers) or every host: this host is always
-probed, through 127.0.0.1 and through its own addresses found in the list, for as long as the application runs, so
-that a participant of any DDS implementation started here later is still found. The loopback interface is enabled
-next to the chosen one because other implementations (RTI Connext) answer a participant of the same host through
-127.0.0.1, and Cyclone ignores announcements that arrive on an interface it does not use. A peer that cannot be
-used (its name does not resolve, no route leads to it) is left out and reported once by the caller.
+probed (its interface's address, and its own addresses found in the list) for as long as the application runs, so
+that a participant of any DDS implementation started here later is still found. Other implementations (RTI Connext)
+answer a participant of the same host through 127.0.0.1: Cyclone is told not to drop announcements that arrive on an
+interface it does not use. A peer that cannot be used (its name does not resolve, no route leads to it) is left out
+and reported once by the caller.
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ LARGE_DATA_SOCKET_BUFFER = "4MiB"
 # of every peer (Cyclone's default is every 8 s to the known, and a probe after 0.1 s then every 30 s to the rest).
 # Under 10 % loss a lost announcement is repeated a second later, so two hosts meet within a few seconds
 # (docs/deployment.md). Indexes of other hosts where no participant answered are probed for PEER_PROBE_DURATION
-# (a host started later announces itself); this host's are probed as long as the application runs (cheap:
-# loopback traffic only).
+# (a host started later announces itself); this host's are probed as long as the application runs (cheap: the
+# datagrams never leave the host).
 PEERS_ANNOUNCE_INTERVAL = "1s"
 PEER_PROBE_DURATION = "300s"
 LOCALHOST = "127.0.0.1"
@@ -129,34 +129,33 @@ class NetworkConfig:
     def _peers_xml(self, plan: PeerPlan) -> str:
         interface = self.interface or plan.route_source
         if not interface and not any(not _is_loopback(name) for _, name in socket.if_nameindex()):
-            interface = "lo"  # a host without a network: Cyclone would pick loopback twice
-        if interface and _is_loopback(interface):
-            interfaces = _interfaces_xml(_interface_xml(interface))
-        else:
-            # The chosen interface first (its address is announced first), loopback beside it (see module doc).
-            chosen = _interface_xml(interface, 'priority="10"') if interface else \
-                '<NetworkInterface autodetermine="true" priority="10"/>'
-            interfaces = _interfaces_xml(chosen + _interface_xml(LOCALHOST))
-        this_host = dict.fromkeys((LOCALHOST, *plan.own))
-        peers = "".join(f"<Peer address={quoteattr(peer)}/>" for peer in plan.remote)
-        peers += "".join(f'<Peer address={quoteattr(peer)} PruneDelay="inf"/>' for peer in this_host)
+            interface = "lo"  # a host without a network
+        # Cyclone probes this host's own address (the interface's) by itself; with the prune delay "inf" below, as
+        # long as it runs. Listed peers that are this host get the same; the other hosts are probed for a while.
+        peers = "".join(f'<Peer address={quoteattr(peer)} PruneDelay="{PEER_PROBE_DURATION}"/>'
+                        for peer in plan.remote)
+        peers += "".join(f"<Peer address={quoteattr(peer)}/>" for peer in plan.own)
         discovery = (f"<Discovery><Peers>{peers}</Peers>{self._participant_index_xml()}"
                      f"<SPDPInterval>{PEERS_ANNOUNCE_INTERVAL}</SPDPInterval>"
-                     f"<InitialLocatorPruneDelay>{PEER_PROBE_DURATION}</InitialLocatorPruneDelay></Discovery>")
-        return self._domain_xml(interfaces, False, discovery)
+                     "<InitialLocatorPruneDelay>inf</InitialLocatorPruneDelay></Discovery>")
+        # Not asking the kernel on which interface a packet arrived: with that information Cyclone drops participant
+        # announcements that arrive on an interface it does not use, such as RTI's answers through 127.0.0.1.
+        internal = "<ExtendedPacketInfo>false</ExtendedPacketInfo>"
+        return self._domain_xml(_interfaces_xml(_interface_xml(interface)) if interface else "", False, discovery,
+                                internal)
 
     def _participant_index_xml(self) -> str:
         return (f"<ParticipantIndex>auto</ParticipantIndex>"
                 f"<MaxAutoParticipantIndex>{self.max_participants}</MaxAutoParticipantIndex>")
 
-    def _domain_xml(self, interfaces: str, multicast: bool, discovery: str) -> str:
+    def _domain_xml(self, interfaces: str, multicast: bool, discovery: str, internal: str = "") -> str:
         general = f"{interfaces}<AllowMulticast>{'true' if multicast else 'false'}</AllowMulticast>"
-        internal = ""
         if self.large_data:
             general += (f"<MaxMessageSize>{min(65500, self.fragment_size + 1500)}B</MaxMessageSize>"
                         f"<FragmentSize>{self.fragment_size}B</FragmentSize>")
-            internal = (f'<Internal><SocketReceiveBufferSize min="default" max="{self.socket_buffer}"/>'
-                        f'<SocketSendBufferSize min="default" max="{self.socket_buffer}"/></Internal>')
+            internal += (f'<SocketReceiveBufferSize min="default" max="{self.socket_buffer}"/>'
+                         f'<SocketSendBufferSize min="default" max="{self.socket_buffer}"/>')
+        internal = f"<Internal>{internal}</Internal>" if internal else ""
         return f"<CycloneDDS><Domain><General>{general}</General>{discovery}{internal}</Domain></CycloneDDS>"
 
     def describe(self) -> str:

@@ -73,17 +73,18 @@ def test_network_configurations() -> None:
     peers = NetworkConfig.from_settings(peers=["10.0.0.2", "hostb"], interface="eth1", max_participants=30)
     xml = peers.cyclone_xml(PeerPlan(remote=("10.0.0.2", "10.0.0.3"), own=("10.0.0.1",)))
     assert "<AllowMulticast>false" in xml
-    # loopback beside the chosen interface: other stacks answer a participant of the same host through 127.0.0.1
-    assert '<NetworkInterface name="eth1" priority="10"/><NetworkInterface address="127.0.0.1"/>' in xml
-    # the other hosts, then this host (127.0.0.1 and its own listed addresses), probed as long as the process runs
-    assert ('<Peer address="10.0.0.2"/><Peer address="10.0.0.3"/><Peer address="127.0.0.1" PruneDelay="inf"/>'
-            '<Peer address="10.0.0.1" PruneDelay="inf"/>') in xml
+    assert '<NetworkInterface name="eth1"/>' in xml
+    # the other hosts probed for 5 minutes; this host (Cyclone adds its interface's address) as long as it runs
+    assert '<Peer address="10.0.0.2" PruneDelay="300s"/><Peer address="10.0.0.3" PruneDelay="300s"/>' in xml
+    assert '<Peer address="10.0.0.1"/>' in xml and "<InitialLocatorPruneDelay>inf<" in xml
+    # RTI answers a participant of its own host through 127.0.0.1: Cyclone must not drop what arrives on lo
+    assert "<ExtendedPacketInfo>false</ExtendedPacketInfo>" in xml
     assert "<MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>" in xml
     assert "<SPDPInterval>1s</SPDPInterval>" in xml
     # without an interface, the one on the route to the first other host
     unnamed = NetworkConfig.from_settings(peers=["10.0.0.2"])
     routed = unnamed.cyclone_xml(PeerPlan(("10.0.0.2",), route_source="10.0.0.1"))
-    assert '<NetworkInterface address="10.0.0.1" priority="10"/>' in routed
+    assert '<NetworkInterface address="10.0.0.1"/>' in routed
 
     plan = plan_peers(("127.0.0.1", "localhost", "no-such-host.invalid"))
     assert plan.own == ("127.0.0.1",) and plan.remote == ()
