@@ -107,6 +107,16 @@ class TwoHosts:
         return total
 
 
+def wait_until_running(host: Host, timeout: float = 10.0) -> None:
+    """Wait until the host's end of the link is running, so that no process starts on a host that has only
+    loopback to offer."""
+    deadline = time.monotonic() + timeout
+    while "LOWER_UP" not in run("ip", "-n", host.namespace, "link", "show", host.device).stdout:
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{host.device} in {host.namespace} not running after {timeout:.0f} s")
+        time.sleep(0.05)  # polling the kernel's link state, which nothing announces to us
+
+
 def netns_available() -> str | None:
     if os.geteuid() != 0:
         return "needs root for ip netns"
@@ -141,6 +151,8 @@ def hosts(domain_id: int) -> Iterator[TwoHosts]:
             must("ip", "-n", host.namespace, "addr", "add", f"{host.address}/24", "dev", host.device)
             must("ip", "-n", host.namespace, "link", "set", host.device, "multicast", "off", "up")
             must("ip", "-n", host.namespace, "link", "set", "lo", "up")
+        for host in (a, b):
+            wait_until_running(host)
         yield TwoHosts(a, b, runner, domain_id)
     finally:
         runner.stop_all()
@@ -259,8 +271,9 @@ def test_rti_participant_whose_initial_peers_name_only_the_other_host(hosts: Two
     on A (peers: every host) and on B (peers: only A). Every flow reaches every reader, both ways: the RTI readers
     get what A and B write, and our readers on A (another host) and on B (the same host) get what RTI writes."""
     a, b = hosts.a, hosts.b
+    # RTI's default transports include shared memory: an IPC namespace of its own keeps it from other RTI processes
     rti = hosts.start(b, "rti_peer", [
-        sys.executable, str(ROOT / "tests" / "rti_peer.py"), "--domain", str(hosts.domain_id),
+        "unshare", "--ipc", sys.executable, str(ROOT / "tests" / "rti_peer.py"), "--domain", str(hosts.domain_id),
         # The participant also reads what it writes: its alert reader keeps 16 samples (not the HMI profile's
         # latest one), so that its own alert, written every 0.2 s, does not replace ours before it is taken.
         "--initial-peers", ADDRESS_A,
