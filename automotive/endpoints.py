@@ -47,8 +47,11 @@ class Databus:
         # A Domain object carries our network configuration; with the user's own CYCLONEDDS_URI we leave it alone.
         self.domain: Domain | None = None
         if network is not None:
+            plan = network.peer_plan()
+            for peer, reason in plan.unusable:
+                log.warning("network: peer %s left out: %s", peer, reason)
             try:
-                self.domain = Domain(domain_id, network.cyclone_xml())
+                self.domain = Domain(domain_id, network.cyclone_xml(plan))
             except DDSException as error:
                 raise ConfigError(
                     f"network {network.describe()}: Cyclone refused the configuration ({error})") from None

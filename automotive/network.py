@@ -2,6 +2,14 @@
 
 The choice produces a Cyclone DDS configuration (XML) for the application's domain. A user's own CYCLONEDDS_URI
 is honoured: when it is set and no network option was given explicitly, it is used untouched.
+
+Unicast peers: each listed host is probed at every participant index (a UDP port) for participant announcements.
+The peer list may name only the other hosts (as RTI users write initial peers) or every host: this host is always
+probed (its interface's address, and its own addresses found in the list) for as long as the application runs, so
+that a participant of any DDS implementation started here later is still found. Other implementations (RTI Connext)
+answer a participant of the same host through 127.0.0.1: Cyclone is told not to drop announcements that arrive on an
+interface it does not use. A peer that cannot be used (its name does not resolve, no route leads to it) is left out
+and reported once by the caller.
 """
 
 from __future__ import annotations
@@ -9,6 +17,7 @@ from __future__ import annotations
 import ipaddress
 import os
 import re
+import socket
 from dataclasses import dataclass, field
 from xml.sax.saxutils import quoteattr
 
@@ -27,7 +36,50 @@ DEFAULT_MAX_PARTICIPANTS = 120
 # where one lost piece loses the datagram: meant for one host (loopback's MTU is 64 KiB) or a clean LAN.
 LARGE_DATA_FRAGMENT_SIZE = 62000
 LARGE_DATA_SOCKET_BUFFER = "4MiB"
+# Peers mode: a participant announces itself every second, to the participants it knows and to every probed index
+# of every peer (Cyclone's default is every 8 s to the known, and a probe after 0.1 s then every 30 s to the rest).
+# Under 10 % loss a lost announcement is repeated a second later, so two hosts meet within a few seconds
+# (docs/deployment.md). Indexes of other hosts where no participant answered are probed for PEER_PROBE_DURATION
+# (a host started later announces itself); this host's are probed as long as the application runs (cheap: the
+# datagrams never leave the host).
+PEERS_ANNOUNCE_INTERVAL = "1s"
+PEER_PROBE_DURATION = "300s"
+LOCALHOST = "127.0.0.1"
 _HOST_NAME = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?$")
+
+
+@dataclass(frozen=True)
+class PeerPlan:
+    """What becomes of each listed peer: another host to probe, this host, or unusable (and why)."""
+
+    remote: tuple[str, ...] = ()  # IPv4 addresses of the other hosts
+    own: tuple[str, ...] = ()  # listed addresses that belong to this host
+    unusable: tuple[tuple[str, str], ...] = ()  # (peer as listed, reason): left out of the configuration
+    route_source: str = ""  # this host's address on the route to the first remote peer
+
+
+def plan_peers(peers: tuple[str, ...]) -> PeerPlan:
+    """Resolve each peer and classify it. Sends nothing: binding and connecting a UDP socket only ask the kernel."""
+    remote: list[str] = []
+    own: list[str] = []
+    unusable: list[tuple[str, str]] = []
+    route_source = ""
+    for peer in peers:
+        try:
+            address = socket.getaddrinfo(peer, None, socket.AF_INET, socket.SOCK_DGRAM)[0][4][0]
+        except (socket.gaierror, UnicodeError) as error:
+            unusable.append((peer, f"the name does not resolve to an IPv4 address ({error.strerror or error})"))
+            continue
+        if _is_own_address(address):
+            own.append(address)
+            continue
+        source = _route_source(address)
+        if source is None:
+            unusable.append((peer, "no route leads there from this host"))
+            continue
+        remote.append(address)
+        route_source = route_source or source
+    return PeerPlan(tuple(dict.fromkeys(remote)), tuple(dict.fromkeys(own)), tuple(unusable), route_source)
 
 
 @dataclass(frozen=True)
@@ -60,29 +112,50 @@ class NetworkConfig:
             raise ConfigError(f"{source}: max participants {max_participants} must be at least 1")
         return cls(mode, interface, tuple(peers), max_participants, large_data)
 
-    def cyclone_xml(self) -> str:
-        """The Cyclone DDS configuration for this choice."""
+    def peer_plan(self) -> PeerPlan:
+        """The listed peers resolved and classified (peers mode; other modes probe no peer host)."""
+        return plan_peers(self.peers) if self.mode == PEERS else PeerPlan()
+
+    def cyclone_xml(self, plan: PeerPlan | None = None) -> str:
+        """The Cyclone DDS configuration for this choice (peers mode: from ``plan``, made here if not given)."""
+        if self.mode == PEERS:
+            return self._peers_xml(plan or self.peer_plan())
         if self.mode == LOOPBACK:
-            interface, multicast, peers = "lo", False, ("127.0.0.1",)
-        elif self.mode == LAN:
-            interface, multicast, peers = self.interface, True, ()
-        else:
-            interface, multicast, peers = self.interface, False, self.peers
-        general = f"<AllowMulticast>{'true' if multicast else 'false'}</AllowMulticast>"
-        if interface:
-            attribute = "address" if _is_address(interface) else "name"
-            general = f"<Interfaces><NetworkInterface {attribute}={quoteattr(interface)}/></Interfaces>" + general
-        internal = ""
+            discovery = (f'<Discovery><Peers><Peer address="{LOCALHOST}"/></Peers>'
+                         f"{self._participant_index_xml()}</Discovery>")
+            return self._domain_xml(_interfaces_xml(_interface_xml("lo")), False, discovery)
+        return self._domain_xml(_interfaces_xml(_interface_xml(self.interface)) if self.interface else "", True, "")
+
+    def _peers_xml(self, plan: PeerPlan) -> str:
+        interface = self.interface or plan.route_source
+        if not interface and not any(not _is_loopback(name) for _, name in socket.if_nameindex()):
+            interface = "lo"  # a host without a network
+        # Cyclone probes this host's own address (the interface's) by itself; with the prune delay "inf" below, as
+        # long as it runs. Listed peers that are this host get the same; the other hosts are probed for a while.
+        peers = "".join(f'<Peer address={quoteattr(peer)} PruneDelay="{PEER_PROBE_DURATION}"/>'
+                        for peer in plan.remote)
+        peers += "".join(f"<Peer address={quoteattr(peer)}/>" for peer in plan.own)
+        discovery = (f"<Discovery><Peers>{peers}</Peers>{self._participant_index_xml()}"
+                     f"<SPDPInterval>{PEERS_ANNOUNCE_INTERVAL}</SPDPInterval>"
+                     "<InitialLocatorPruneDelay>inf</InitialLocatorPruneDelay></Discovery>")
+        # Not asking the kernel on which interface a packet arrived: with that information Cyclone drops participant
+        # announcements that arrive on an interface it does not use, such as RTI's answers through 127.0.0.1.
+        internal = "<ExtendedPacketInfo>false</ExtendedPacketInfo>"
+        return self._domain_xml(_interfaces_xml(_interface_xml(interface)) if interface else "", False, discovery,
+                                internal)
+
+    def _participant_index_xml(self) -> str:
+        return (f"<ParticipantIndex>auto</ParticipantIndex>"
+                f"<MaxAutoParticipantIndex>{self.max_participants}</MaxAutoParticipantIndex>")
+
+    def _domain_xml(self, interfaces: str, multicast: bool, discovery: str, internal: str = "") -> str:
+        general = f"{interfaces}<AllowMulticast>{'true' if multicast else 'false'}</AllowMulticast>"
         if self.large_data:
             general += (f"<MaxMessageSize>{min(65500, self.fragment_size + 1500)}B</MaxMessageSize>"
                         f"<FragmentSize>{self.fragment_size}B</FragmentSize>")
-            internal = (f'<Internal><SocketReceiveBufferSize min="default" max="{self.socket_buffer}"/>'
-                        f'<SocketSendBufferSize min="default" max="{self.socket_buffer}"/></Internal>')
-        discovery = ""
-        if peers:
-            peer_xml = "".join(f"<Peer address={quoteattr(peer)}/>" for peer in peers)
-            discovery = (f"<Discovery><Peers>{peer_xml}</Peers><ParticipantIndex>auto</ParticipantIndex>"
-                         f"<MaxAutoParticipantIndex>{self.max_participants}</MaxAutoParticipantIndex></Discovery>")
+            internal += (f'<SocketReceiveBufferSize min="default" max="{self.socket_buffer}"/>'
+                         f'<SocketSendBufferSize min="default" max="{self.socket_buffer}"/>')
+        internal = f"<Internal>{internal}</Internal>" if internal else ""
         return f"<CycloneDDS><Domain><General>{general}</General>{discovery}{internal}</Domain></CycloneDDS>"
 
     def describe(self) -> str:
@@ -108,3 +181,38 @@ def _is_address(text: str) -> bool:
 
 def _valid_host(text: str) -> bool:
     return _is_address(text) or bool(_HOST_NAME.match(text))
+
+
+def _interface_xml(interface: str, attributes: str = "") -> str:
+    """One NetworkInterface element, the interface given by name or by address."""
+    attribute = "address" if _is_address(interface) else "name"
+    return f"<NetworkInterface {attribute}={quoteattr(interface)}{' ' + attributes if attributes else ''}/>"
+
+
+def _interfaces_xml(elements: str) -> str:
+    return f"<Interfaces>{elements}</Interfaces>"
+
+
+def _is_loopback(interface: str) -> bool:
+    return interface in ("lo", "lo0") or (_is_address(interface) and ipaddress.ip_address(interface).is_loopback)
+
+
+def _is_own_address(address: str) -> bool:
+    """True when ``address`` belongs to this host (the kernel lets a socket bind to it)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.bind((address, 0))
+        except OSError:
+            return False
+    return True
+
+
+def _route_source(address: str) -> str | None:
+    """This host's address on the route to ``address``, or None without a route (connecting a UDP socket sends
+    nothing)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.connect((address, 7400))
+        except OSError:
+            return None
+        return str(probe.getsockname()[0])

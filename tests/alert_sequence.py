@@ -58,6 +58,7 @@ def make_bus(args: argparse.Namespace) -> Databus:
 
 
 def write(args: argparse.Namespace) -> int:
+    created = time.monotonic()  # discovery starts with the participant
     bus = make_bus(args)
     writer = bus.writer("AlertTopic", DriverAlerts, "HMI")
     deadline = time.monotonic() + args.timeout
@@ -66,7 +67,7 @@ def write(args: argparse.Namespace) -> int:
             print(f"only {len(writer.get_matched_subscriptions())} of {args.readers} readers matched", flush=True)
             return 1
         time.sleep(0.05)  # polling a status: the readers are other processes on another host
-    print(f"matched {args.readers} readers", flush=True)
+    print(f"matched {args.readers} readers in {time.monotonic() - created:.2f} s", flush=True)
     start = time.monotonic()
     next_write = start
     for number in range(1, args.count + 1):

@@ -11,14 +11,26 @@ the test's domain holding only the writers and readers the test asks for, so mat
 
 Endpoint names (see ENDPOINTS): Circle, Lidar, Alerts, Vision, PlatformControl, PlatformStatus, SensorObjects,
 Camera, Camera64KiB.
-RTI stays on loopback (UDPv4 only, no multicast, initial peer 127.0.0.1): see the Loopback QoS profile.
+RTI stays on loopback (UDPv4 only, no multicast, initial peer 127.0.0.1): see the Loopback QoS profile. With
+``initial_peers`` it uses the interfaces of its network namespace instead and announces itself only to those hosts
+(the Unicast profile), as RTI users configure a network without multicast.
+
+Run as a script, inside a test's network namespace, it is one such participant in a process of its own: it writes
+the given samples every 0.2 s and prints one line per matched endpoint and per distinct sample it reads::
+
+    python tests/rti_peer.py --domain 7 --initial-peers 10.231.0.1 --read Vision,Alerts \\
+        --write 'Alerts={"frontCollision": true}'
 """
 
 from __future__ import annotations
 
+import argparse
 import itertools
+import json
+import signal
+import sys
 import time
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -60,7 +72,8 @@ ENDPOINTS: dict[str, Endpoint] = {
 _peer_numbers = itertools.count(1)
 
 
-def _participant_xml(library: str, domain_id: int, writers: Mapping[str, str], readers: Mapping[str, str]) -> str:
+def _participant_xml(library: str, domain_id: int, writers: Mapping[str, str], readers: Mapping[str, str],
+                     initial_peers: Sequence[str] = ()) -> str:
     def endpoint(tag: str, qos_tag: str, name: str, profile: str) -> str:
         topic = ENDPOINTS[name].topic
         return (f"<{tag} name={quoteattr(name)} topic_ref={quoteattr(topic)}>"
@@ -70,10 +83,18 @@ def _participant_xml(library: str, domain_id: int, writers: Mapping[str, str], r
     subscriber = "".join(endpoint("data_reader", "datareader_qos", n, p) for n, p in readers.items())
     return (f"<dds><domain_participant_library name={quoteattr(library)}>"
             f"<domain_participant name=\"Peer\" domain_ref=\"RtiPeerDomains::Automotive\" domain_id=\"{domain_id}\">"
-            f"<domain_participant_qos base_name=\"{QOS_LIBRARY}::Loopback\"/>"
+            f"{_participant_qos(initial_peers)}"
             f"<publisher name=\"Pub\">{publisher}</publisher>"
             f"<subscriber name=\"Sub\">{subscriber}</subscriber>"
             f"</domain_participant></domain_participant_library></dds>")
+
+
+def _participant_qos(initial_peers: Sequence[str]) -> str:
+    if not initial_peers:
+        return f"<domain_participant_qos base_name=\"{QOS_LIBRARY}::Loopback\"/>"
+    peers = "".join(f"<element>udpv4://{peer}</element>" for peer in initial_peers)
+    return (f"<domain_participant_qos base_name=\"{QOS_LIBRARY}::Unicast\">"
+            f"<discovery><initial_peers>{peers}</initial_peers></discovery></domain_participant_qos>")
 
 
 def _profiles(names: Iterable[str] | Mapping[str, str], default: Callable[[Endpoint], str]) -> dict[str, str]:
@@ -86,7 +107,8 @@ def _profiles(names: Iterable[str] | Mapping[str, str], default: Callable[[Endpo
 
 
 class RtiPeer:
-    """One RTI Connext participant with the requested writers and readers, in ``domain_id``, on loopback.
+    """One RTI Connext participant with the requested writers and readers, in ``domain_id``, on loopback (or,
+    given ``initial_peers``, unicast to those hosts on the interfaces of its network namespace).
 
     ``writers``/``readers`` are endpoint names (keys of ENDPOINTS), or mappings from endpoint name to a QoS
     profile of the RtiPeerQos library: "Writer", "WriterXcdr2" (writes XCDR2), "ReliableReader",
@@ -97,12 +119,13 @@ class RtiPeer:
     """
 
     def __init__(self, domain_id: int, writers: Iterable[str] | Mapping[str, str] = (),
-                 readers: Iterable[str] | Mapping[str, str] = (), xml: Path = RTI_XML):
+                 readers: Iterable[str] | Mapping[str, str] = (), xml: Path = RTI_XML,
+                 initial_peers: Sequence[str] = ()):
         self.domain_id = domain_id
         self.writers = _profiles(writers, lambda e: e.writer_profile)
         self.readers = _profiles(readers, lambda e: e.reader_profile)
         library = f"RtiPeer{next(_peer_numbers)}"
-        participant = _participant_xml(library, domain_id, self.writers, self.readers)
+        participant = _participant_xml(library, domain_id, self.writers, self.readers, initial_peers)
         self.connector: rti.Connector | None = rti.Connector(f"{library}::Peer", f'{xml};str://"{participant}"')
         self._outputs = {name: self.connector.get_output(f"Pub::{name}") for name in self.writers}
         self._inputs = {name: self.connector.get_input(f"Sub::{name}") for name in self.readers}
@@ -195,3 +218,73 @@ def _wait(condition: Callable[[], bool], timeout: float, what: str) -> None:
         if time.monotonic() > deadline:
             raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
         time.sleep(0.02)
+
+
+# --- as a process of its own (tests/test_multihost.py runs it inside a network namespace) ----------------------------
+
+def _sample_label(name: str, sample: Mapping[str, Any], written: Mapping[str, Mapping[str, Any]]) -> tuple[str, str]:
+    """What tells one writer's samples from another's in the printed lines: (kind, text); one line per kind."""
+    if name == "Vision":
+        return f"id={sample['id']}", f"id={sample['id']}"
+    if name == "PlatformControl":
+        own = sample["sample_id"] == written.get(name, {}).get("sample_id")
+        return ("own" if own else "other"), f"sample_id={sample['sample_id']}"
+    if name == "Alerts":
+        flags = ",".join(flag for flag, value in sample.items() if value) or "none"
+        return flags, flags
+    return "any", "any"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description="One RTI Connext participant in a process of its own.")
+    parser.add_argument("--domain", type=int, required=True)
+    parser.add_argument("--initial-peers", default="", help="comma-separated hosts (default: loopback only)")
+    parser.add_argument("--read", default="", metavar="NAME[:PROFILE],...",
+                        help="endpoints to read, each with its default reader profile or the one named")
+    parser.add_argument("--write", action="append", default=[], metavar="NAME=JSON",
+                        help="an endpoint to write and its sample as JSON, written every 0.2 s (repeatable)")
+    args = parser.parse_args(argv)
+    readers = dict(item.partition(":")[::2] for item in args.read.split(",") if item)
+    samples: dict[str, dict[str, Any]] = {}
+    for item in args.write:
+        name, _, sample = item.partition("=")
+        try:
+            samples[name] = json.loads(sample or "{}")
+        except json.JSONDecodeError as error:
+            print(f"--write {item}: the sample is not JSON ({error})", file=sys.stderr)
+            return 2
+    try:
+        peer = RtiPeer(args.domain, writers=list(samples), readers=readers,
+                       initial_peers=[host for host in args.initial_peers.split(",") if host])
+    except ValueError as error:
+        print(error, file=sys.stderr)
+        return 2
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # close the participant on the way out
+    seen: set[tuple[str, str]] = set()
+    matched: dict[str, int] = {}
+    print("rti peer running", flush=True)
+    try:
+        while True:
+            for name, sample in samples.items():
+                peer.write(name, sample)
+                count = peer.matched_readers(name)
+                if count > matched.get(f"writer {name}", 0):
+                    print(f"writer {name} matched {count} reader(s)", flush=True)
+                matched[f"writer {name}"] = count
+            for name in readers:
+                count = peer.matched_writers(name)
+                if count > matched.get(f"reader {name}", 0):
+                    print(f"reader {name} matched {count} writer(s)", flush=True)
+                matched[f"reader {name}"] = count
+                for sample in peer.take(name):
+                    kind, text = _sample_label(name, sample, samples)
+                    if (name, kind) not in seen:
+                        seen.add((name, kind))
+                        print(f"received {name} {text}", flush=True)
+            time.sleep(0.2)
+    finally:
+        peer.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,5 +1,6 @@
 """Two hosts made of network namespaces joined by a veth pair: unicast peers with multicast off, a wrong peer list,
-and a lossy link. Needs root (ip netns); skipped otherwise.
+a lossy link, and an RTI Connext participant configured as RTI users write initial peers. Needs root (ip netns);
+skipped otherwise.
 
 Host A (10.231.0.1, veth-a) and host B (10.231.0.2, veth-b) exist only inside their namespaces, which each test
 creates and deletes. Each test's applications are stopped before its namespaces are deleted.
@@ -29,6 +30,10 @@ SUBNET = "10.231.0"  # a private /24, used only inside the test's namespaces
 ADDRESS_A, ADDRESS_B = f"{SUBNET}.1", f"{SUBNET}.2"
 PEERS = f"{ADDRESS_A},{ADDRESS_B}"
 LOSS_PERCENT = 10
+# Peers mode discovers two hosts within this many seconds under LOSS_PERCENT % loss (README, docs/deployment.md).
+DISCOVERY_BOUND_S = 5.0
+# A line Cyclone DDS logs itself (its errors and warnings: "<time> [<domain>] <thread>: ..."); a normal run has none.
+CYCLONE_LOG_LINE = r"^\d+\.\d+ \[\d+\] "
 _names = itertools.count()
 
 
@@ -65,6 +70,11 @@ class TwoHosts:
         return self.start(host, name, [sys.executable, "-m", f"apps.{name}", "--domain", str(self.domain_id),
                                        "--peers", peers, "--interface", host.device, *args])
 
+    def assert_no_cyclone_lines(self) -> None:
+        for process in self.runner.processes:
+            lines = [line for line in process.lines if re.match(CYCLONE_LOG_LINE, line)]
+            assert not lines, f"{process.name} printed Cyclone DDS log lines:\n" + "\n".join(lines[:10])
+
     def add_loss(self, percent: int) -> None:
         """Drop ``percent`` % of the packets arriving on each end of the link (both directions)."""
         for host in (self.a, self.b):
@@ -95,6 +105,16 @@ class TwoHosts:
             listing = run("ip", "netns", "exec", host.namespace, "nft", "list", "table", "netdev", "lossy").stdout
             total += sum(int(n) for n in re.findall(r"counter packets (\d+)", listing))
         return total
+
+
+def wait_until_running(host: Host, timeout: float = 10.0) -> None:
+    """Wait until the host's end of the link is running, so that no process starts on a host that has only
+    loopback to offer."""
+    deadline = time.monotonic() + timeout
+    while "LOWER_UP" not in run("ip", "-n", host.namespace, "link", "show", host.device).stdout:
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{host.device} in {host.namespace} not running after {timeout:.0f} s")
+        time.sleep(0.05)  # polling the kernel's link state, which nothing announces to us
 
 
 def netns_available() -> str | None:
@@ -131,6 +151,8 @@ def hosts(domain_id: int) -> Iterator[TwoHosts]:
             must("ip", "-n", host.namespace, "addr", "add", f"{host.address}/24", "dev", host.device)
             must("ip", "-n", host.namespace, "link", "set", host.device, "multicast", "off", "up")
             must("ip", "-n", host.namespace, "link", "set", "lo", "up")
+        for host in (a, b):
+            wait_until_running(host)
         yield TwoHosts(a, b, runner, domain_id)
     finally:
         runner.stop_all()
@@ -140,7 +162,8 @@ def hosts(domain_id: int) -> Iterator[TwoHosts]:
 
 def test_alert_reaches_the_other_host_and_the_command_flows_back(hosts: TwoHosts) -> None:
     a, b = hosts.a, hosts.b
-    hmi = hosts.app(b, "hmi", "--ui", "console")
+    unroutable = "10.232.0.1"  # no route leads there from the namespaces: left out, reported once, never sent to
+    hmi = hosts.app(b, "hmi", "--ui", "console", peers=f"{PEERS},{unroutable}")
     avoidance = hosts.app(b, "collision_avoidance", "-D", "config.alertSize=1.0")  # every car is taller than 1 m
     platform = hosts.app(a, "vehicle_platform")
     fusion = hosts.app(a, "sensor_fusion")
@@ -156,6 +179,8 @@ def test_alert_reaches_the_other_host_and_the_command_flows_back(hosts: TwoHosts
     print(f"cross-host flow established in {time.monotonic() - start:.1f} s")
     for process in (hmi, avoidance, platform, fusion):
         assert process.count(r"network: unicast peers") == 1, process.output[-2000:]
+    assert hmi.count(rf"network: peer {unroutable} left out: no route leads there from this host") == 1
+    hosts.assert_no_cyclone_lines()
 
 
 def test_wrong_peer_list_nothing_flows(hosts: TwoHosts) -> None:
@@ -213,10 +238,15 @@ def test_every_alert_arrives_in_order_over_a_lossy_link(hosts: TwoHosts) -> None
     hmi = hosts.app(b, "hmi", "--ui", "console")
     reader = hosts.start(b, "alert_reader", [sys.executable, script, "read", "--keep-all", *common,
                                              "--interface", b.device])
+    # The writer starts once both readers exist, so that the time it takes to match them is discovery's alone.
+    hmi.wait_for(r"waiting for alerts")
+    reader.wait_for(r"^reading alerts$")
     writer = hosts.start(a, "alert_writer", [sys.executable, script, "write", *common, "--interface", a.device,
                                              "--count", str(count), "--readers", "2", "--step", "--timeout", "20"],
                          stdin=True)
-    writer.wait_for(r"matched 2 readers", timeout=30)
+    matched = writer.wait_for(r"matched 2 readers in [\d.]+ s", timeout=30)
+    discovery_s = float(matched.split()[-2])
+    assert discovery_s <= DISCOVERY_BOUND_S, matched
     for number in range(1, count + 1):
         writer.wait_for(rf"^wrote alert {number}$", timeout=20)  # acknowledged by both readers
         reader.wait_for(rf"^alert {number}$", timeout=5)
@@ -231,8 +261,46 @@ def test_every_alert_arrives_in_order_over_a_lossy_link(hosts: TwoHosts) -> None
     shown = [decode_hmi_alert(line) for line in hmi.lines if "DRIVER ALERT: " in line]
     assert shown == list(range(1, count + 1)), shown
     dropped = hosts.dropped()
-    print(f"{summary}; {dropped} packets dropped on the link")
+    print(f"{matched}; {summary}; {dropped} packets dropped on the link")
     assert dropped > 0  # the loss was real
+    hosts.assert_no_cyclone_lines()
+
+
+def test_rti_participant_whose_initial_peers_name_only_the_other_host(hosts: TwoHosts) -> None:
+    """An RTI Connext participant on B whose initial peers name only A, as RTI users write them; our applications
+    on A (peers: every host) and on B (peers: only A). Every flow reaches every reader, both ways: the RTI readers
+    get what A and B write, and our readers on A (another host) and on B (the same host) get what RTI writes."""
+    a, b = hosts.a, hosts.b
+    # RTI's default transports include shared memory: an IPC namespace of its own keeps it from other RTI processes
+    rti = hosts.start(b, "rti_peer", [
+        "unshare", "--ipc", sys.executable, str(ROOT / "tests" / "rti_peer.py"), "--domain", str(hosts.domain_id),
+        # The participant also reads what it writes: its alert reader keeps 16 samples (not the HMI profile's
+        # latest one), so that its own alert, written every 0.2 s, does not replace ours before it is taken.
+        "--initial-peers", ADDRESS_A,
+        "--read", "Vision,SensorObjects,PlatformStatus,PlatformControl,Alerts:ReliableReader",
+        "--write", 'Vision={"id": 42}', "--write", 'PlatformControl={"sample_id": 4242}',
+        "--write", 'Alerts={"frontCollision": true}'])
+    hosts.app(a, "vision")
+    fusion = hosts.app(a, "sensor_fusion")
+    platform = hosts.app(a, "vehicle_platform")
+    avoidance = hosts.app(b, "collision_avoidance", "-D", "config.alertSize=1.0", peers=ADDRESS_A)
+    hmi = hosts.app(b, "hmi", "--ui", "console", peers=ADDRESS_A)
+
+    # RTI on B reads our flows from A ...
+    rti.wait_for(r"^received Vision id=(?!42$)\d+$")  # vision's own sensor id, not RTI's 42
+    rti.wait_for(r"^received SensorObjects ")
+    rti.wait_for(r"^received PlatformStatus ")
+    # ... and from B (the RTI participant's own writers are told apart by their values)
+    rti.wait_for(r"^received PlatformControl sample_id=(?!4242$)\d+$")
+    rti.wait_for(r"^received Alerts driverAttention$")
+    # Our readers on A get RTI's samples from B, and so does our HMI on B
+    fusion.wait_for(r"published list \d+: .* of sensor\(s\) (\d+,)*42\b")
+    platform.wait_for(r"command 4242 stamped")
+    hmi.wait_for(r"DRIVER ALERT: Front collision warning$")
+    # ... and our applications found each other across the hosts too
+    avoidance.wait_for(r"\[SensorObjects\] reader matched a writer")
+    platform.wait_for(r"command (?!4242 )\d+ stamped")  # collision avoidance on B commands A
+    hosts.assert_no_cyclone_lines()
 
 
 def test_lan_multicast_with_the_launcher_on_each_host(hosts: TwoHosts, tmp_path: Path) -> None:

@@ -14,7 +14,7 @@ from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState
 from automotive.bounds import BoundError
 from automotive.endpoints import Databus
 from automotive.errors import ConfigError
-from automotive.network import NetworkConfig
+from automotive.network import NetworkConfig, PeerPlan, plan_peers
 from automotive.qos import QosProfiles
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
@@ -70,11 +70,26 @@ def test_network_configurations() -> None:
     lan = NetworkConfig.from_settings(interface="eth1").cyclone_xml()
     assert '<NetworkInterface name="eth1"/>' in lan and "<AllowMulticast>true" in lan and "<Peer" not in lan
 
-    peers = NetworkConfig.from_settings(peers=["10.0.0.2", "hostb"], max_participants=30)
-    xml = peers.cyclone_xml()
+    peers = NetworkConfig.from_settings(peers=["10.0.0.2", "hostb"], interface="eth1", max_participants=30)
+    xml = peers.cyclone_xml(PeerPlan(remote=("10.0.0.2", "10.0.0.3"), own=("10.0.0.1",)))
     assert "<AllowMulticast>false" in xml
-    assert '<Peer address="10.0.0.2"/><Peer address="hostb"/>' in xml
+    assert '<NetworkInterface name="eth1"/>' in xml
+    # the other hosts probed for 5 minutes; this host (Cyclone adds its interface's address) as long as it runs
+    assert '<Peer address="10.0.0.2" PruneDelay="300s"/><Peer address="10.0.0.3" PruneDelay="300s"/>' in xml
+    assert '<Peer address="10.0.0.1"/>' in xml and "<InitialLocatorPruneDelay>inf<" in xml
+    # RTI answers a participant of its own host through 127.0.0.1: Cyclone must not drop what arrives on lo
+    assert "<ExtendedPacketInfo>false</ExtendedPacketInfo>" in xml
     assert "<MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>" in xml
+    assert "<SPDPInterval>1s</SPDPInterval>" in xml
+    # without an interface, the one on the route to the first other host
+    unnamed = NetworkConfig.from_settings(peers=["10.0.0.2"])
+    routed = unnamed.cyclone_xml(PeerPlan(("10.0.0.2",), route_source="10.0.0.1"))
+    assert '<NetworkInterface address="10.0.0.1"/>' in routed
+
+    plan = plan_peers(("127.0.0.1", "localhost", "no-such-host.invalid"))
+    assert plan.own == ("127.0.0.1",) and plan.remote == ()
+    assert [peer for peer, _ in plan.unusable] == ["no-such-host.invalid"]
+    assert "does not resolve" in plan.unusable[0][1]
 
     large = NetworkConfig.from_settings(large_data=True).cyclone_xml()
     assert "<FragmentSize>62000B</FragmentSize>" in large and "<MaxMessageSize>63500B</MaxMessageSize>" in large
