@@ -73,7 +73,8 @@ def test_bad_properties(apps, app: str, args: list[str], pattern: str) -> None: 
 
 # The scripts the README prints, started as printed: through their shebang, with whatever python3 the PATH has
 # (not the project's .venv); each installs the project if needed and restarts itself in .venv.
-README_SCRIPTS = ["launch", "bench-lidar", "bench-large-data", "bench-scale", "bench-fastpath", "bench-failover"]
+README_SCRIPTS = ["launch", "bench-lidar", "bench-large-data", "bench-scale", "bench-fastpath", "bench-failover",
+                  "bench-record"]
 
 
 @pytest.mark.parametrize("script", README_SCRIPTS)
