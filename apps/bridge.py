@@ -55,7 +55,7 @@ def foxglove_channel(app: Application, flow: Flow) -> foxglove.Channel:
 
 
 def body(app: Application) -> None:
-    flows = select(system_flows(), [name for name in app.args.topics.split(",") if name] if app.args.topics else [])
+    flows = select(system_flows(), app.args.topics)
     backlog = app.props.get_int("config.backlog", 16, minimum=1)
     port: int = app.args.port
     if not 0 <= port <= 65535:

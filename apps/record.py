@@ -170,7 +170,7 @@ def open_output(path: Path, overwrite: bool) -> BinaryIO:
 
 
 def body(app: Application) -> None:
-    flows = select(system_flows(), [name for name in app.args.topics.split(",") if name] if app.args.topics else [])
+    flows = select(system_flows(), app.args.topics)
     if app.args.duration is not None and app.args.duration <= 0:
         raise ConfigError(f"--duration {app.args.duration:g}: expected a number of seconds above 0")
     compression = app.props.get_choice("config.compression", list(COMPRESSIONS), "none")

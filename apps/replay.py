@@ -85,7 +85,7 @@ def body(app: Application) -> None:
     if start_s is not None and end_s is not None and end_s < start_s:
         raise ConfigError(f"--end {end_s:g} is before --start {start_s:g}")
     all_flows = system_flows()
-    chosen = select(all_flows, [name for name in app.args.topics.split(",") if name] if app.args.topics else [])
+    chosen = select(all_flows, app.args.topics)
     flows = {flow.topic: flow for flow in chosen}
     known = {flow.topic: flow for flow in all_flows}
     stream, reader = open_recording(path)

@@ -39,7 +39,7 @@ from automotive.endpoints import Databus
 from automotive.errors import ConfigError
 from automotive.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, user_uri
 from automotive.properties import Properties
-from automotive.qos import QosProfiles
+from automotive.qos import QosProfiles, profile_name
 from automotive.status import EventHook
 
 T = TypeVar("T")
@@ -134,7 +134,7 @@ class Application:
 
     def profile(self, role: str) -> str:
         """``qos.<role>.Profile`` (or ``qos.Profile``, or the role); in redundant mode its Redundant companion."""
-        profile = self.props.get_str(f"qos.{role}.Profile", None) or self.props.get_str("qos.Profile", role)
+        profile = profile_name(self.props, role)
         if self.redundant and self.profiles.has(self.library, profile + REDUNDANT_SUFFIX):
             return profile + REDUNDANT_SUFFIX
         return profile

@@ -20,6 +20,7 @@ from cyclonedds.qos import DataWriterQos
 from automotive.camera import frame_type
 from automotive.errors import ConfigError
 from automotive.properties import Properties
+from automotive.qos import profile_name
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.automotive import ShapeType
 from automotive.types.Platform import PlatformControl, PlatformStatus
@@ -100,15 +101,17 @@ def system_flows(properties_dir: Path = PROPERTIES_DIR) -> list[Flow]:
     for source in SOURCES:
         props = Properties.load(properties_dir / f"{source.app}.properties")
         topic = props.get_str(f"topic.{source.role}", source.default_topic)
-        profile = props.get_str(f"qos.{source.role}.Profile", None) or props.get_str("qos.Profile", source.role)
+        profile = profile_name(props, source.role)
         data_type = source.data_type or frame_type(props.get_str("config.imageSize", "full"),
                                                    f"{props.source}: config.imageSize")
         flows.append(Flow(topic, data_type, profile))
     return flows
 
 
-def select(flows: list[Flow], names: list[str], option: str = "--topics") -> list[Flow]:
-    """The flows named (all of them for an empty list); an unknown name is a ConfigError listing the known ones."""
+def select(flows: list[Flow], topics: str | None, option: str = "--topics") -> list[Flow]:
+    """The flows named in ``topics`` (comma-separated; all of them when empty); an unknown name is a ConfigError
+    listing the known ones."""
+    names = [name for name in (topics or "").split(",") if name]
     if not names:
         return flows
     by_topic = {flow.topic: flow for flow in flows}

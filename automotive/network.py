@@ -123,8 +123,8 @@ class NetworkConfig:
         if self.mode == LOOPBACK:
             discovery = (f'<Discovery><Peers><Peer address="{LOCALHOST}"/></Peers>'
                          f"{self._participant_index_xml()}</Discovery>")
-            return self._domain_xml(_interfaces_xml(_interface_xml("lo")), False, discovery)
-        return self._domain_xml(_interfaces_xml(_interface_xml(self.interface)) if self.interface else "", True, "")
+            return self._domain_xml(_interfaces_xml("lo"), False, discovery)
+        return self._domain_xml(_interfaces_xml(self.interface), True, "")
 
     def _peers_xml(self, plan: PeerPlan) -> str:
         interface = self.interface or plan.route_source
@@ -141,8 +141,7 @@ class NetworkConfig:
         # Not asking the kernel on which interface a packet arrived: with that information Cyclone drops participant
         # announcements that arrive on an interface it does not use, such as RTI's answers through 127.0.0.1.
         internal = "<ExtendedPacketInfo>false</ExtendedPacketInfo>"
-        return self._domain_xml(_interfaces_xml(_interface_xml(interface)) if interface else "", False, discovery,
-                                internal)
+        return self._domain_xml(_interfaces_xml(interface), False, discovery, internal)
 
     def _participant_index_xml(self) -> str:
         return (f"<ParticipantIndex>auto</ParticipantIndex>"
@@ -183,14 +182,12 @@ def _valid_host(text: str) -> bool:
     return _is_address(text) or bool(_HOST_NAME.match(text))
 
 
-def _interface_xml(interface: str, attributes: str = "") -> str:
-    """One NetworkInterface element, the interface given by name or by address."""
+def _interfaces_xml(interface: str) -> str:
+    """The Interfaces element naming one interface by name or by address; nothing ("" lets Cyclone choose)."""
+    if not interface:
+        return ""
     attribute = "address" if _is_address(interface) else "name"
-    return f"<NetworkInterface {attribute}={quoteattr(interface)}{' ' + attributes if attributes else ''}/>"
-
-
-def _interfaces_xml(elements: str) -> str:
-    return f"<Interfaces>{elements}</Interfaces>"
+    return f"<Interfaces><NetworkInterface {attribute}={quoteattr(interface)}/></Interfaces>"
 
 
 def _is_loopback(interface: str) -> bool:

@@ -9,11 +9,17 @@ from cyclonedds.qos import DataReaderQos, DataWriterQos, Policy
 from cyclonedds.qos_provider import QosProvider
 
 from automotive.errors import ConfigError
+from automotive.properties import Properties
 
 # RTI Connext 6 readers accept XCDR1 by default, not Cyclone's XCDR2 default for appendable types; our writers
 # therefore write XCDR1 and our readers accept both.
 WRITER_REPRESENTATION = Policy.DataRepresentation(use_cdrv0_representation=True)
 READER_REPRESENTATION = Policy.DataRepresentation(use_cdrv0_representation=True, use_xcdrv2_representation=True)
+
+
+def profile_name(props: Properties, role: str) -> str:
+    """The QoS profile of an application's endpoint: ``qos.<role>.Profile``, else ``qos.Profile``, else the role."""
+    return props.get_str(f"qos.{role}.Profile", None) or props.get_str("qos.Profile", role)
 
 
 def _local_name(tag: str) -> str:
