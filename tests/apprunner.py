@@ -10,6 +10,8 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 DEFAULT_TIMEOUT = 30.0
@@ -71,6 +73,19 @@ class CommandProcess:
                     self._ended = True
             except queue.Empty:
                 pass
+
+    def wait_for_more(self, pattern: str, more: int = 1, timeout: float = DEFAULT_TIMEOUT) -> str:
+        """Wait until ``more`` lines beyond those printed so far match ``pattern``; return the last match."""
+        return self.wait_for(pattern, timeout, count=self.count(pattern) + more)
+
+    @contextmanager
+    def frozen(self) -> Iterator[None]:
+        """The process stopped (SIGSTOP: hung, not dead) inside the block, continued (SIGCONT) after it."""
+        self.process.send_signal(signal.SIGSTOP)
+        try:
+            yield
+        finally:
+            self.process.send_signal(signal.SIGCONT)
 
     def send(self, line: str) -> None:
         """Write one line to the process's standard input (started with ``stdin=True``)."""

@@ -159,12 +159,9 @@ def test_frozen_primary_collision_avoidance_loses_ownership_and_regains_it(apps,
                                                           "collision_avoidance-2"))
     to_primary = next_line(system.platform, owner_changed("PlatformControl", "collision_avoidance-2",
                                                           "collision_avoidance"))
-    primary.process.send_signal(signal.SIGSTOP)  # frozen, not dead: longer than the 250 ms lease
-    try:
+    with primary.frozen():  # frozen, not dead: longer than the 250 ms lease
         to_standby()
         system.wait_for_more_commands(5)
-    finally:
-        primary.process.send_signal(signal.SIGCONT)
     # Back, it skips the object lists it missed (the standby answered them), steps down, numbers its commands after
     # the standby's and takes over again.
     primary.wait_for(r"skipped \d+ object list\(s\) older than the 250 ms lease", TIMEOUT)
@@ -188,13 +185,10 @@ def test_frozen_primary_sensor_fusion_skips_what_it_missed(apps, domain_id: int,
                   for avoidance in system.avoidance.values()]
     to_primary = [next_line(avoidance, owner_changed("SensorObjects", "sensor_fusion-2", "sensor_fusion"))
                   for avoidance in system.avoidance.values()]
-    primary.process.send_signal(signal.SIGSTOP)
-    try:
+    with primary.frozen():
         for wait in to_standby:
             wait()
         system.wait_for_more_commands(5)  # frozen well past the lease
-    finally:
-        primary.process.send_signal(signal.SIGCONT)
     # Back, it does not fuse the vision samples it missed into a list of stale objects, and takes over again.
     primary.wait_for(r"skipped \d+ vision sample\(s\) older than the 250 ms lease", TIMEOUT)
     for wait in to_primary:

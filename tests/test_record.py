@@ -67,8 +67,7 @@ def write_until_recorded(recorder: Any, writer: Any, sample: Any, topic: str, ti
     while not recorded_count(recorder, topic):
         assert time.monotonic() < deadline, f"the recorder never got a {topic} sample:\n{recorder.output[-3000:]}"
         writer.write(sample, timestamp=timestamp)
-        seen = recorder.count(r"record: recorded=")
-        recorder.wait_for(r"record: recorded=", count=seen + 1, timeout=TIMEOUT)
+        recorder.wait_for_more(r"record: recorded=", 1, timeout=TIMEOUT)
 
 
 def recorded_count(recorder: Any, topic: str) -> int:

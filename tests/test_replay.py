@@ -60,8 +60,7 @@ def alert_states(path: Path) -> list[bytes]:
 
 def stop_after_quiet(recorder: Any) -> None:
     """Let the recorder see two more status lines (the last alerts are on their way), then stop it with Ctrl-C."""
-    seen = recorder.count(r"record: recorded=")
-    recorder.wait_for(r"record: recorded=", count=seen + 2, timeout=TIMEOUT)
+    recorder.wait_for_more(r"record: recorded=", 2, timeout=TIMEOUT)
     assert recorder.stop(signal.SIGINT) == 0, recorder.output
 
 

@@ -21,6 +21,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.topic import Topic
 from rti_peer import RtiPeer
+from test_camera import BEST_EFFORT_QOS, totals
 
 from automotive import lfsr
 from automotive.camera import FrameWriter
@@ -29,7 +30,6 @@ from automotive.shm import SharedFrameReader, SharedFrameWriter, SharedMemory
 from automotive.types.CameraImage import CameraImageData_64KiB
 
 ROOT = Path(__file__).resolve().parent.parent
-BEST_EFFORT_QOS = ROOT / "tests" / "data" / "camera_best_effort_qos.xml"
 SHORT_BLOCKING_QOS = ROOT / "tests" / "data" / "camera_short_blocking_qos.xml"
 TIMEOUT = 120.0  # starting Python, Cyclone and iceoryx2 on a loaded 2-core machine can take a while
 GLOBAL_FILE = re.compile(r"node\.[\d_]+\.global_mgmt$")  # iceoryx2's one shared file per prefix, not a service's
@@ -58,11 +58,6 @@ def shm_args(domain_id: int, prefix: str, *more: str) -> list[str]:
     return ["--domain", str(domain_id), "-D", "config.transport=shm", "-D", f"config.shmPrefix={prefix}", *more]
 
 
-def totals(output: str) -> dict[str, str]:
-    line = next(line for line in output.splitlines() if "totals:" in line)
-    return dict(re.findall(r"([\w/]+)=(\S+)", line))
-
-
 def test_camera_pair_over_shared_memory_verifies_every_frame_at_full_speed(apps, domain_id: int,  # type: ignore[no-untyped-def]
                                                                             prefix: str) -> None:
     """Full-size frames as fast as possible: the reliable Camera profile's flow control loses none."""
@@ -88,12 +83,8 @@ def test_gaps_are_counted_when_the_subscriber_falls_behind(apps, domain_id: int,
     sub.wait_for("through shared memory \\(keeping the last 1\\)", timeout=TIMEOUT)
     pub = apps.start("camera_pub", *shm_args(domain_id, prefix, "--count", "400", "-D", "config.pubInterval=5", *qos))
     sub.wait_for(r"samples=\d+ size=65536", timeout=TIMEOUT)  # frames are arriving
-    os.kill(sub.process.pid, signal.SIGSTOP)
-    try:
-        published = pub.count(r"published \d+ frames:")
-        pub.wait_for(r"published \d+ frames:", count=published + 1, timeout=TIMEOUT)  # a second or more goes by
-    finally:
-        os.kill(sub.process.pid, signal.SIGCONT)
+    with sub.frozen():
+        pub.wait_for_more(r"published \d+ frames:", 1, timeout=TIMEOUT)  # a second or more goes by
     assert pub.wait_exit(timeout=TIMEOUT) == 0, pub.output
     assert sub.wait_exit(timeout=TIMEOUT) == 0, sub.output  # it noticed the publisher leave
     result = totals(sub.output)
@@ -113,22 +104,15 @@ def test_a_stalled_or_dead_subscriber_holds_a_reliable_publisher_back_at_most_ma
     stalled.wait_for(r"through shared memory \(keeping the last 8\)", timeout=TIMEOUT)
     pub = apps.start("camera_pub", *args, "-D", "config.pubInterval=5")
     stalled.wait_for(r"samples=\d+ size=65536", timeout=TIMEOUT)
-    os.kill(stalled.process.pid, signal.SIGSTOP)
-    try:
+    with stalled.frozen():
         pub.wait_for(r"shared memory: no frame consumed for 0.5 s", timeout=TIMEOUT)
-        published = pub.count(r"published \d+ frames:")
-        pub.wait_for(r"published \d+ frames:", count=published + 2, timeout=TIMEOUT)  # the flow goes on
-    finally:
-        os.kill(stalled.process.pid, signal.SIGCONT)
-    seen = stalled.count(r"samples=\d+ size=65536")
-    stalled.wait_for(r"samples=\d+ size=65536", count=seen + 1, timeout=TIMEOUT)  # it catches up
+        pub.wait_for_more(r"published \d+ frames:", 2, timeout=TIMEOUT)  # the flow goes on
+    stalled.wait_for_more(r"samples=\d+ size=65536", 1, timeout=TIMEOUT)  # it catches up
     dead = apps.start("camera_sub", *args)
     dead.wait_for(r"samples=\d+ size=65536", timeout=TIMEOUT)
     dead.stop(signal.SIGKILL)
-    warnings = pub.count(r"no frame consumed for 0.5 s")
-    pub.wait_for(r"no frame consumed for 0.5 s", count=warnings + 1, timeout=TIMEOUT)  # the dead one's queue filled
-    published = pub.count(r"published \d+ frames:")
-    pub.wait_for(r"published \d+ frames:", count=published + 2, timeout=TIMEOUT)
+    pub.wait_for_more(r"no frame consumed for 0.5 s", 1, timeout=TIMEOUT)  # the dead one's queue filled
+    pub.wait_for_more(r"published \d+ frames:", 2, timeout=TIMEOUT)
     assert pub.stop(signal.SIGTERM) == 0, pub.output
     assert stalled.wait_exit(timeout=TIMEOUT) == 0, stalled.output
     result = totals(stalled.output)
@@ -202,8 +186,7 @@ def test_a_sigkilled_publisher_restarted_is_picked_up(apps, domain_id: int,  # t
     first.stop(signal.SIGKILL)
     second = apps.start("camera_pub", *args, "-D", "config.pubInterval=20")
     sub.wait_for(r"seqnum went back from \d+ to 1 \(publisher restarted\?\)", timeout=TIMEOUT)
-    seen = sub.count(r"samples=\d+ size=65536")
-    sub.wait_for(r"samples=\d+ size=65536", count=seen + 1, timeout=TIMEOUT)  # the new publisher's frames flow
+    sub.wait_for_more(r"samples=\d+ size=65536", 1, timeout=TIMEOUT)  # the new publisher's frames flow
     assert second.stop(signal.SIGTERM) == 0, second.output
     assert sub.stop(signal.SIGTERM) == 0, sub.output
     result = totals(sub.output)

@@ -134,11 +134,8 @@ def test_stopped_vision_makes_fusion_report_a_deadline_miss(apps, domain_id: int
     assert fusion.count("requested deadline missed") == 0
     # A hung sensor: its writer still exists but sends nothing. (A sensor that exits cleanly unregisters its
     # instance, and DDS checks deadlines only on live instances.)
-    vision.process.send_signal(signal.SIGSTOP)
-    try:
+    with vision.frozen():
         fusion.wait_for(r"\[VisionTopic\] requested deadline missed", timeout=15)
-    finally:
-        vision.process.send_signal(signal.SIGCONT)
 
 
 def test_killed_collision_avoidance_loses_liveliness_and_recovers(apps, domain_id: int,  # type: ignore[no-untyped-def]
