@@ -23,16 +23,15 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.qos import DataReaderQos, Policy
+from cyclonedds.sub import DataReader
 
-from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet  # noqa: E402
-from cyclonedds.qos import DataReaderQos, Policy  # noqa: E402
-from cyclonedds.sub import DataReader  # noqa: E402
-
-from automotive.endpoints import Databus  # noqa: E402
-from automotive.network import NetworkConfig  # noqa: E402
-from automotive.qos import QosProfiles  # noqa: E402
-from automotive.types.Alerts import DriverAlerts  # noqa: E402
+from automotive import config
+from automotive.bus.endpoints import Databus
+from automotive.bus.network import NetworkConfig
+from automotive.bus.qos import QosProfiles
+from automotive.types.Alerts import DriverAlerts
 
 FLAGS = ("blindSpotDriver", "blindSpotPassenger", "frontCollision", "backCollision", "parkingCollision",
          "driverAttention")
@@ -53,7 +52,7 @@ def make_bus(args: argparse.Namespace) -> Databus:
     log = logging.getLogger("alert_sequence")
     log.addHandler(logging.StreamHandler(sys.stdout))
     log.setLevel(logging.INFO)
-    return Databus(args.domain, QosProfiles(ROOT / "qos" / "automotive_qos.xml"), "AutomotiveLibrary", log, network,
+    return Databus(args.domain, QosProfiles(config.qos_file()), "AutomotiveLibrary", log, network,
                    "alert_sequence")
 
 

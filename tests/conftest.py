@@ -13,13 +13,15 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # the tests' helper modules
 
-from automotive.network import NetworkConfig  # noqa: E402
+from automotive import cyclone  # noqa: E402
+from automotive.bus.network import NetworkConfig  # noqa: E402
 
 # In-process participants (and the application processes the tests start, which inherit it) stay on loopback.
 os.environ["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()
+# The fast paths of the test process's own endpoints, as every program switches them on when it starts.
+cyclone.start()
 
 # Domain ids 100..232 belong to tests that ask for the `domain_id` fixture; each test gets its own.
 _domain_ids = itertools.cycle(range(100, 233))

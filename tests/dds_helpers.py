@@ -10,15 +10,16 @@ from typing import Any
 
 from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 
-from automotive.endpoints import Databus
-from automotive.network import NetworkConfig
-from automotive.qos import QosProfiles
+from automotive import config
+from automotive.bus.endpoints import Databus
+from automotive.bus.network import NetworkConfig
+from automotive.bus.qos import QosProfiles
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def make_bus(domain_id: int, qos_file: Path | None = None) -> Databus:
-    profiles = QosProfiles(qos_file or ROOT / "qos" / "automotive_qos.xml")
+    profiles = QosProfiles(qos_file or config.qos_file())
     return Databus(domain_id, profiles, "AutomotiveLibrary", logging.getLogger("test"), NetworkConfig())
 
 

@@ -10,9 +10,9 @@ import numpy.typing as npt
 from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.sub import DataReader
 
-from automotive.endpoints import Databus
-from automotive.pointcloud import decode_point_cloud2
+from automotive.bus.endpoints import Databus
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
+from automotive.wire.pointcloud import decode_point_cloud2
 
 
 def circle(world_x: float, world_y: float) -> tuple[int, int]:

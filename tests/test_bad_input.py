@@ -10,6 +10,8 @@ from pathlib import Path
 import pytest
 from test_system import HEADER, scene
 
+from automotive import config
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -52,9 +54,9 @@ def test_unreadable_data_file(apps, tmp_path: Path) -> None:  # type: ignore[no-
 
 
 def test_missing_required_property(apps, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    text = (ROOT / "properties" / "vision.properties").read_text()
+    text = config.properties_file("vision").read_text()
     props = tmp_path / "vision.properties"
-    text = text.replace("qos.File=../qos/", f"qos.File={ROOT}/qos/")
+    text = text.replace("qos.File=../qos/", f"qos.File={config.shipped_dir()}/qos/")
     props.write_text("\n".join(line for line in text.splitlines() if not line.startswith("dataFile")))
     assert_one_line_error(apps.run("vision", "--properties", str(props)),
                           r"^vision: .*vision.properties: missing required key 'dataFile'$")

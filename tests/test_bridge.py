@@ -1,5 +1,6 @@
-"""apps.bridge: a real WebSocket client speaking the Foxglove SDK protocol (subprotocol foxglove.sdk.v1) sees every
-topic advertised with the recorder's schemas and receives the DDS sample bytes unchanged; a client that stops reading
+"""automotive.tools.bridge: a real WebSocket client speaking the Foxglove SDK protocol (subprotocol foxglove.sdk.v1)
+sees every topic advertised with the recorder's schemas and receives the DDS sample bytes unchanged; a client that
+stops reading
 costs the bridge bounded memory and does not hold back a reliable writer."""
 
 from __future__ import annotations
@@ -17,13 +18,13 @@ from dds_helpers import wait_until
 from test_record import VISION, cloud, wire
 from websockets.sync.client import ClientConnection, connect
 
-from automotive.camera import FrameWriter
-from automotive.endpoints import Databus
-from automotive.flows import system_flows
-from automotive.lfsr import FramePattern
+from automotive.bus.endpoints import Databus
+from automotive.sim.lfsr import FramePattern
+from automotive.tools.flows import system_flows
 from automotive.types.CameraImage import CameraImageData
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.types.Vision import VisionSensor
+from automotive.wire.camera import FrameWriter
 
 TIMEOUT = 60.0
 SUBPROTOCOL = "foxglove.sdk.v1"

@@ -19,10 +19,10 @@ from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 
-from automotive import lfsr
-from automotive.camera import FRAME_TYPES, FrameCodec, FrameReader, FrameWriter, frame_size, frame_type
-from automotive.errors import ConfigError
+from automotive.bus.errors import ConfigError
+from automotive.sim import lfsr
 from automotive.types.CameraImage import CameraImageData, CameraImageData_64KiB
+from automotive.wire.camera import FRAME_TYPES, FrameCodec, FrameReader, FrameWriter, frame_size, frame_type
 
 ROOT = Path(__file__).resolve().parent.parent
 BEST_EFFORT_QOS = ROOT / "tests" / "data" / "camera_best_effort_qos.xml"

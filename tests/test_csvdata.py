@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from automotive.csvdata import (
+from automotive import config
+from automotive.bus.errors import ConfigError
+from automotive.sim.csvdata import (
     PLATFORM_COLUMNS,
     VISION_COLUMNS,
     DataFileError,
@@ -19,12 +21,11 @@ from automotive.csvdata import (
     load_platform_rows,
     load_vision_rows,
 )
-from automotive.errors import ConfigError
 from automotive.types.Common import ClassificationEnum
 from automotive.types.Vision import VisionObject
 
 ROOT = Path(__file__).resolve().parent.parent
-DATA = ROOT / "properties" / "data"
+DATA = config.properties_dir() / "data"
 ALERT_SIZE = 2.0  # collision avoidance's default config.alertSize
 
 VISION_HEADER = ",".join(
@@ -122,7 +123,7 @@ def test_platform_data_file() -> None:
 
 
 def test_generator_is_deterministic(tmp_path: Path) -> None:
-    subprocess.run([sys.executable, str(ROOT / "scripts" / "make-scene-data"), "--out", str(tmp_path)],
+    subprocess.run([sys.executable, "-m", "automotive.tools.make_scene_data", "--out", str(tmp_path)],
                    check=True, capture_output=True, timeout=60)
     for name in ("vision.csv", "platform.csv"):
         assert (tmp_path / name).read_bytes() == (DATA / name).read_bytes(), name

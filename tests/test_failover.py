@@ -19,7 +19,7 @@ from apprunner import AppProcess, AppRunner, CommandProcess
 from cyclonedds.qos import Policy
 from test_system import scene
 
-from automotive.qos import QosProfiles
+from automotive.bus.qos import QosProfiles
 
 PRIMARY, BACKUP = 20, 10
 OWNER_LINE = r"\[{topic}\] owner changed: {old} \(strength {old_strength}\) -> {new} \(strength {new_strength}\)"

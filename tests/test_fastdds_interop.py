@@ -23,9 +23,9 @@ import numpy as np
 from fastdds_peer import FastDdsPeer, octets
 from lidar_helpers import circle, points_of
 
-from automotive import lfsr
-from automotive.endpoints import Databus
-from automotive.pointcloud import SHAPE_RGB
+from automotive.bus.endpoints import Databus
+from automotive.sim import lfsr
+from automotive.sim.scene import SHAPE_RGB
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.builtin_interfaces.msg.dds_ import Time_
 from automotive.types.Platform import PlatformControl, PlatformStatus

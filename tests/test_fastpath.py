@@ -29,8 +29,8 @@ from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from dds_helpers import make_bus, take_samples, wait_until
 
-from automotive import fastpath
-from automotive.bounds import BoundError
+from automotive.cyclone import fastpath
+from automotive.cyclone.bounds import BoundError
 from automotive.types.builtin_interfaces.msg.dds_ import Time_
 from automotive.types.CameraImage import CameraImageData_64KiB
 from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_, PointField_

@@ -1,8 +1,10 @@
-"""scripts/launch in background mode: every application reaches its steady state, Ctrl-C and `scripts/launch stop`
-stop them all, an application that dies is reported with its exit code, subsets and several vision sensors."""
+"""The launcher (automotive-launch, behind scripts/launch) in background mode: every application reaches its steady
+state, Ctrl-C and `automotive-launch stop` stop them all, an application that dies is reported with its exit code,
+subsets and several vision sensors."""
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import re
 import signal
@@ -14,8 +16,11 @@ from pathlib import Path
 import pytest
 from apprunner import AppRunner, CommandProcess
 
+from automotive import config
+
 ROOT = Path(__file__).resolve().parent.parent
-LAUNCH = ROOT / "scripts" / "launch"
+# The console script automotive-launch, as the running interpreter runs it.
+LAUNCH = [sys.executable, "-m", "automotive.tools.launch"]
 APPS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "camera_pub",
         "camera_sub")
 # The first line that shows an application doing its work: a sample published or received.
@@ -38,12 +43,13 @@ STARTED = re.compile(r"^launch\s+\| started (\S+) \(pid (\d+)\)")
 
 
 def available(module: str) -> bool:
-    return (ROOT / "apps" / f"{module}.py").is_file() and (ROOT / "properties" / f"{module}.properties").is_file()
+    return (importlib.util.find_spec(f"automotive.apps.{module}") is not None
+            and config.properties_file(module).is_file())
 
 
 def launch(apps: AppRunner, domain_id: int, log_dir: Path, *args: str) -> CommandProcess:
     # No display: the HMI shows its console box whatever the test machine has.
-    return apps.start_command("launch", [sys.executable, str(LAUNCH), "--no-setup", "--mode", "background",
+    return apps.start_command("launch", [*LAUNCH, "--mode", "background",
                                          "--domain", str(domain_id), "--log-dir", str(log_dir),
                                          "--stop-timeout", str(STOP_TIMEOUT), *args],
                               env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
@@ -107,7 +113,7 @@ def test_an_application_that_dies_is_reported_with_its_exit_code(apps, domain_id
                       timeout=5)
     assert alive(pids["sensor_fusion"])  # the others go on (until stopped below: "stopped on SIGTERM")
 
-    stop = subprocess.run([sys.executable, str(LAUNCH), "stop", "--log-dir", str(tmp_path)], capture_output=True,
+    stop = subprocess.run([*LAUNCH, "stop", "--log-dir", str(tmp_path)], capture_output=True,
                           text=True, timeout=STOP_TIMEOUT + 20)
     assert stop.returncode == 0, stop.stderr
     assert re.search(r"sensor_fusion\s+pid \d+\s+stopped on SIGTERM, exit code 0", stop.stdout), stop.stdout
@@ -125,10 +131,10 @@ def test_subset_with_three_vision_sensors_stopped_by_launch_stop(apps, domain_id
     launcher.wait_for(app_line("sensor_fusion", r"of sensor\(s\) 1,2,3$"), timeout=30)
     assert "config.sensorId=2" in (tmp_path / "vision-2.log").read_text().splitlines()[0]
 
-    status = subprocess.run([sys.executable, str(LAUNCH), "status", "--log-dir", str(tmp_path)], capture_output=True,
+    status = subprocess.run([*LAUNCH, "status", "--log-dir", str(tmp_path)], capture_output=True,
                             text=True, timeout=10)
     assert status.returncode == 0 and status.stdout.count("running") == 4, status.stdout
-    stop = subprocess.run([sys.executable, str(LAUNCH), "stop", "--log-dir", str(tmp_path)], capture_output=True,
+    stop = subprocess.run([*LAUNCH, "stop", "--log-dir", str(tmp_path)], capture_output=True,
                           text=True, timeout=STOP_TIMEOUT + 20)
     assert stop.returncode == 0, stop.stderr
     assert stop.stdout.count("stopped on SIGTERM, exit code 0") == 4, stop.stdout
@@ -144,7 +150,7 @@ def test_subset_with_three_vision_sensors_stopped_by_launch_stop(apps, domain_id
     (["-D", "radar:config.x=1"], "-D radar:config.x=1: unknown application 'radar'"),
 ])
 def test_bad_input_is_one_line_and_exit_code_2(args: list[str], message: str, tmp_path: Path) -> None:
-    result = subprocess.run([sys.executable, str(LAUNCH), "--no-setup", "--log-dir", str(tmp_path), *args],
+    result = subprocess.run([*LAUNCH, "--log-dir", str(tmp_path), *args],
                             capture_output=True, text=True, timeout=20)
     assert result.returncode == 2
     assert result.stderr.count("\n") == 1 and message in result.stderr, result.stderr
@@ -152,12 +158,12 @@ def test_bad_input_is_one_line_and_exit_code_2(args: list[str], message: str, tm
 
 
 def test_list_names_all_eight_applications() -> None:
-    result = subprocess.run([sys.executable, str(LAUNCH), "--list"], capture_output=True, text=True, timeout=20)
+    result = subprocess.run([*LAUNCH, "--list"], capture_output=True, text=True, timeout=20)
     assert result.returncode == 0
     assert [line.split()[0] for line in result.stdout.splitlines()] == list(APPS)
 
 
 def test_stop_without_a_launcher_says_so(tmp_path: Path) -> None:
-    result = subprocess.run([sys.executable, str(LAUNCH), "stop", "--log-dir", str(tmp_path)], capture_output=True,
+    result = subprocess.run([*LAUNCH, "stop", "--log-dir", str(tmp_path)], capture_output=True,
                             text=True, timeout=20)
     assert result.returncode == 1 and "no launcher is running" in result.stderr

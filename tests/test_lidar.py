@@ -21,13 +21,14 @@ from dds_helpers import wait_until
 from lidar_helpers import Clouds, circle, colours_of, points_of, stamp_s
 from PIL import Image
 
-from automotive.endpoints import Databus
-from automotive.pointcloud import BACKGROUND_RGB, FLOAT32, GROUND_RGB, SHAPE_RGB, decode_point_cloud2
-from automotive.qos import WRITER_REPRESENTATION
+from automotive.bus.endpoints import Databus
+from automotive.bus.qos import WRITER_REPRESENTATION
+from automotive.sim.scene import BACKGROUND_RGB, GROUND_RGB, SHAPE_RGB
 from automotive.types.automotive import ShapeType
 from automotive.types.builtin_interfaces.msg.dds_ import Time_
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_, PointField_
 from automotive.types.std_msgs.msg.dds_ import Header_
+from automotive.wire.pointcloud import FLOAT32, decode_point_cloud2
 
 BLUE, GREEN, RED, MAGENTA = (SHAPE_RGB[c] for c in ("BLUE", "GREEN", "RED", "MAGENTA"))
 DEFAULT_OBSERVER = np.array([0.0, 0.0, 1.0])

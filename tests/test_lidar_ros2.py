@@ -20,8 +20,8 @@ from cyclonedds.topic import Topic
 from dds_helpers import wait_until
 from rosbags.typesys import Stores, get_typestore
 
-from automotive.pointcloud import decode_point_cloud2
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
+from automotive.wire.pointcloud import decode_point_cloud2
 
 RVIZ2_READER = Qos(Policy.Reliability.Reliable(0), Policy.Durability.Volatile, Policy.History.KeepLast(5),
                    Policy.DataRepresentation(use_cdrv0_representation=True))

@@ -19,14 +19,15 @@ import pytest
 
 pytest.importorskip("rticonnextdds_connector")
 
-from dds_helpers import wait_until  # noqa: E402
-from lidar_helpers import Clouds, circle, points_of, with_colour  # noqa: E402
-from rti_peer import RTI_XML, RtiPeer  # noqa: E402
+from dds_helpers import wait_until
+from lidar_helpers import Clouds, circle, points_of, with_colour
+from rti_peer import RTI_XML, RtiPeer
 
-from automotive.endpoints import Databus  # noqa: E402
-from automotive.pointcloud import FLOAT32, SHAPE_RGB, LidarScene, ScanGrid, decode_point_cloud2  # noqa: E402
-from automotive.types.automotive import ShapeType  # noqa: E402
-from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_  # noqa: E402
+from automotive.bus.endpoints import Databus
+from automotive.sim.scene import SHAPE_RGB, LidarScene, ScanGrid
+from automotive.types.automotive import ShapeType
+from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
+from automotive.wire.pointcloud import FLOAT32, decode_point_cloud2
 
 # Profiles of this file's RTI endpoints, added to a copy of the peer's XML (RtiPeer names profiles of its own QoS
 # library). Both are complete on their own apart from the base profiles they name.

@@ -23,7 +23,8 @@ from pathlib import Path
 import pytest
 from apprunner import AppRunner, CommandProcess
 
-from apps.hmi import ALERT_TEXTS
+from automotive.apps.hmi import ALERT_TEXTS
+from automotive.tools.children import program_command
 
 ROOT = Path(__file__).resolve().parent.parent
 SUBNET = "10.231.0"  # a private /24, used only inside the test's namespaces
@@ -67,8 +68,8 @@ class TwoHosts:
                                          stdin=stdin)
 
     def app(self, host: Host, name: str, *args: str, peers: str = PEERS) -> CommandProcess:
-        return self.start(host, name, [sys.executable, "-m", f"apps.{name}", "--domain", str(self.domain_id),
-                                       "--peers", peers, "--interface", host.device, *args])
+        return self.start(host, name, program_command(name, "--domain", str(self.domain_id), "--peers", peers,
+                                                      "--interface", host.device, *args))
 
     def assert_no_cyclone_lines(self) -> None:
         for process in self.runner.processes:
@@ -308,7 +309,7 @@ def test_lan_multicast_with_the_launcher_on_each_host(hosts: TwoHosts, tmp_path:
     a, b = hosts.a, hosts.b
     for host in (a, b):
         must("ip", "-n", host.namespace, "link", "set", host.device, "multicast", "on")
-    launch = [sys.executable, str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
+    launch = [str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
               "--domain", str(hosts.domain_id)]
     on_a = hosts.start(a, "launch", [*launch, "--interface", a.device, "--log-dir", str(tmp_path / "a"),
                                      "vision", "sensor_fusion", "vehicle_platform"])

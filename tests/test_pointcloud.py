@@ -10,25 +10,14 @@ import numpy.typing as npt
 import pytest
 from PIL import Image
 
-from automotive import fastpath
-from automotive.cloudview import render_png
-from automotive.errors import ConfigError
-from automotive.pointcloud import (
-    BACKGROUND_RGB,
-    FLOAT32,
-    GROUND_RGB,
-    POINT_DTYPE,
-    SHAPE_RGB,
-    UNKNOWN_SHAPE_RGB,
-    LidarScene,
-    ScanGrid,
-    decode_point_cloud2,
-    pack_rgb,
-    to_point_cloud2,
-)
+from automotive.bus.errors import ConfigError
+from automotive.cyclone import fastpath
+from automotive.sim.scene import BACKGROUND_RGB, GROUND_RGB, SHAPE_RGB, UNKNOWN_SHAPE_RGB, LidarScene, ScanGrid
+from automotive.tools.cloudview import render_png
 from automotive.types.builtin_interfaces.msg.dds_ import Time_
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_, PointField_
 from automotive.types.std_msgs.msg.dds_ import Header_
+from automotive.wire.pointcloud import FLOAT32, POINT_DTYPE, decode_point_cloud2, pack_rgb, to_point_cloud2
 
 DEFAULT_OBSERVER = np.array([0.0, 0.0, 1.0])
 
@@ -313,7 +302,7 @@ def test_ray_casting_matches_brute_force(grid: ScanGrid) -> None:
 
 
 def test_render_image_skips_points_it_cannot_place() -> None:
-    from automotive.cloudview import render_image
+    from automotive.tools.cloudview import render_image
 
     assert render_image(np.empty((0, 3)), np.empty((0, 3), dtype=np.uint8), (64, 32)).shape == (32, 64, 3)
     image = render_image(np.array([[np.nan, 0, 0], [1, 2, 0.5]]), np.array([[0, 0, 0], [255, 0, 0]]), (200, 100))

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from automotive.errors import ConfigError
-from automotive.properties import Properties
+from automotive.bus.errors import ConfigError
+from automotive.bus.properties import Properties
 
 SAMPLE = r"""
 # a comment
@@ -106,4 +106,19 @@ def test_line_without_key(tmp_path: Path) -> None:
     path = tmp_path / "bad.properties"
     path.write_text("ok=1\n= value\n")
     with pytest.raises(ConfigError, match=r"bad.properties:2: a line has a value but no key"):
+        Properties.load(path)
+
+
+def test_unicode_escapes_and_continuation_lines(tmp_path: Path) -> None:
+    path = tmp_path / "u.properties"
+    path.write_text("config.name = Stra\\u00dfe \\u2192 \\\n    A9\nnext=1\n")
+    props = Properties.load(path)
+    assert props.get_str("config.name") == "Straße → A9"
+    assert props.get_int("next") == 1
+
+
+def test_bad_unicode_escape_names_file_and_line(tmp_path: Path) -> None:
+    path = tmp_path / "bad.properties"
+    path.write_text("ok=1\n# comment\nname=\\u12G4\n")
+    with pytest.raises(ConfigError, match=r"bad.properties:3: invalid \\u escape"):
         Properties.load(path)

@@ -7,11 +7,12 @@ from pathlib import Path
 import pytest
 from cyclonedds.qos import Policy, Qos
 
-from automotive.errors import ConfigError
-from automotive.qos import QosProfiles
+from automotive import config
+from automotive.bus.errors import ConfigError
+from automotive.bus.qos import QosProfiles
 
 ROOT = Path(__file__).resolve().parent.parent
-QOS_FILE = ROOT / "qos" / "automotive_qos.xml"
+QOS_FILE = config.qos_file()
 LIBRARY = "AutomotiveLibrary"
 SECOND = 1_000_000_000
 BEST_EFFORT_FLOWS = ["Vision", "Platform", "CollisionAvoidance", "SensorFusion"]

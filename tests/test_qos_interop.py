@@ -28,13 +28,14 @@ from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
 from dds_helpers import wait_until
 
-from automotive.properties import Properties
-from automotive.qos import QosProfiles
-from automotive.status import policy_name
+from automotive import config
+from automotive.bus.properties import Properties
+from automotive.bus.qos import QosProfiles
+from automotive.bus.status import policy_name
 from automotive.types.Alerts import DriverAlerts
 
 ROOT = Path(__file__).resolve().parent.parent
-QOS_FILE = ROOT / "qos" / "automotive_qos.xml"
+QOS_FILE = config.qos_file()
 LIBRARY = "AutomotiveLibrary"
 INFINITE = 0x7FFFFFFFFFFFFFFF
 # What a peer with its stack's defaults can request or offer beyond the DDS defaults: the original's contract.
@@ -143,7 +144,7 @@ def file_profiles(path: Path) -> list[Profile]:
 def shipped_profiles() -> dict[str, list[str]]:
     """Profile name -> the properties files (and keys) that name it."""
     named: dict[str, list[str]] = {}
-    for path in sorted((ROOT / "properties").glob("*.properties")):
+    for path in sorted(config.properties_dir().glob("*.properties")):
         properties = Properties.load(path)
         # A file just loaded has read none of its keys: its unused keys are all of them.
         for key in [key for key in properties.unused_keys() if re.fullmatch(r"qos\.(\w+\.)?Profile", key)]:

@@ -1,5 +1,5 @@
-"""automotive.rawsample: serialized samples taken and written without (de)serializing, disposals and unregistrations
-included, checked against Cyclone's own serializer and typed readers."""
+"""automotive.wire.rawsample: serialized samples taken and written without (de)serializing, disposals and
+unregistrations included, checked against Cyclone's own serializer and typed readers."""
 
 from __future__ import annotations
 
@@ -11,11 +11,11 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import DataWriterQos, Policy
 from dds_helpers import take_samples, wait_until
 
-from automotive.endpoints import Databus
-from automotive.rawsample import RawReader, RawSample, RawWriter, SampleKind, key_to_sample
+from automotive.bus.endpoints import Databus
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.Vision import VisionObject, VisionSensor
+from automotive.wire.rawsample import RawReader, RawSample, RawWriter, SampleKind, key_to_sample
 
 
 def vision(sensor_id: int, seconds: int = 1) -> VisionSensor:

@@ -1,5 +1,5 @@
-"""apps.record: a recording read back with the official `mcap` library and with `rosbags` (an independent reader),
-every field of known samples equal; a killed recorder's file; Ctrl-C and SIGTERM; bad input."""
+"""automotive.tools.record: a recording read back with the official `mcap` library and with `rosbags` (an independent
+reader), every field of known samples equal; a killed recorder's file; Ctrl-C and SIGTERM; bad input."""
 
 from __future__ import annotations
 
@@ -17,8 +17,8 @@ from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 from rosbags.highlevel import AnyReader
 
-from automotive.endpoints import Databus
-from automotive.pointcloud import LidarScene, ScanGrid
+from automotive.bus.endpoints import Databus
+from automotive.sim.scene import LidarScene, ScanGrid
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_

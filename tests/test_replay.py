@@ -1,5 +1,6 @@
-"""apps.replay: a recorded drive replayed into sensor fusion and collision avoidance gives the recorded alerts; an
-RTI Connext reader receives replayed samples as it received the live ones; channels that are not the system's are
+"""automotive.tools.replay: a recorded drive replayed into sensor fusion and collision avoidance gives the recorded
+alerts; an RTI Connext reader receives replayed samples as it received the live ones; channels that are not the
+system's are
 skipped; bad input."""
 
 from __future__ import annotations
@@ -21,8 +22,8 @@ from rti_peer import RtiPeer
 from test_record import cloud, recorded_count, wire, write_until_recorded
 from test_system import CAR, HEADER, TRUCK, vision_row
 
-from automotive.endpoints import Databus
-from automotive.flows import IDL_FILE
+from automotive import config
+from automotive.bus.endpoints import Databus
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
@@ -165,7 +166,7 @@ def write_mcap(path: Path, channels: list[tuple[str, str, str, bytes]]) -> None:
         writer = Writer(stream)
         writer.start(profile="ros2", library="test")
         for number, (topic, schema_name, encoding, data) in enumerate(channels, start=1):
-            schema = writer.register_schema(schema_name, encoding, IDL_FILE.read_bytes())
+            schema = writer.register_schema(schema_name, encoding, config.idl_file().read_bytes())
             channel = writer.register_channel(topic, "cdr", schema)
             for _ in range(3):
                 writer.add_message(channel, log_time=number, data=data, publish_time=number)

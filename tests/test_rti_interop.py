@@ -15,20 +15,20 @@ import pytest
 
 pytest.importorskip("rticonnextdds_connector")
 
-from cyclonedds.core import InstanceState  # noqa: E402
-from cyclonedds.pub import DataWriter  # noqa: E402
-from cyclonedds.qos import Policy, Qos  # noqa: E402
-from cyclonedds.sub import DataReader  # noqa: E402
-from cyclonedds.util import duration  # noqa: E402
-from dds_helpers import take_samples, wait_until  # noqa: E402
-from rti_peer import RtiPeer  # noqa: E402
+from cyclonedds.core import InstanceState
+from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
+from cyclonedds.util import duration
+from dds_helpers import take_samples, wait_until
+from rti_peer import RtiPeer
 
-from automotive.endpoints import Databus  # noqa: E402
-from automotive.qos import READER_REPRESENTATION, WRITER_REPRESENTATION  # noqa: E402
-from automotive.types.Alerts import DriverAlerts  # noqa: E402
-from automotive.types.automotive import ShapeType  # noqa: E402
-from automotive.types.Common import ClassificationEnum, POSIXTimestamp  # noqa: E402
-from automotive.types.Vision import VisionObject, VisionSensor  # noqa: E402
+from automotive.bus.endpoints import Databus
+from automotive.bus.qos import READER_REPRESENTATION, WRITER_REPRESENTATION
+from automotive.types.Alerts import DriverAlerts
+from automotive.types.automotive import ShapeType
+from automotive.types.Common import ClassificationEnum, POSIXTimestamp
+from automotive.types.Vision import VisionObject, VisionSensor
 
 # Values exactly representable as float32, so a round trip through either side compares equal.
 VISION_RTI = {"id": 4711, "timestamp": {"s": 1700000000, "ns": 123456789}, "objects": [

@@ -12,9 +12,9 @@ import pytest
 
 pytest.importorskip("rticonnextdds_connector")
 
-from rti_peer import RtiPeer  # noqa: E402
+from rti_peer import RtiPeer
 
-from automotive.lfsr import FramePattern  # noqa: E402
+from automotive.sim.lfsr import FramePattern
 
 FULL_FRAME = 1366 * 768 * 4
 FLOWS = ["Vision", "SensorObjects", "PlatformControl", "PlatformStatus", "Alerts", "Lidar", "Camera"]

@@ -11,17 +11,18 @@ from pathlib import Path
 import pytest
 from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 
-from automotive.bounds import BoundError
-from automotive.endpoints import Databus
-from automotive.errors import ConfigError
-from automotive.network import NetworkConfig, PeerPlan, plan_peers
-from automotive.qos import QosProfiles
+from automotive import config
+from automotive.bus.endpoints import Databus
+from automotive.bus.errors import ConfigError
+from automotive.bus.network import NetworkConfig, PeerPlan, plan_peers
+from automotive.bus.qos import QosProfiles
+from automotive.cyclone.bounds import BoundError
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.Vision import VisionObject, VisionSensor
 
 ROOT = Path(__file__).resolve().parent.parent
-PROFILES = QosProfiles(ROOT / "qos" / "automotive_qos.xml")
+PROFILES = QosProfiles(config.qos_file())
 
 
 def wait_for_samples(reader, count: int, timeout: float = 10.0) -> list:  # type: ignore[no-untyped-def]

@@ -23,11 +23,11 @@ from cyclonedds.topic import Topic
 from rti_peer import RtiPeer
 from test_camera import BEST_EFFORT_QOS, totals
 
-from automotive import lfsr
-from automotive.camera import FrameWriter
-from automotive.qos import WRITER_REPRESENTATION
-from automotive.shm import SharedFrameReader, SharedFrameWriter, SharedMemory
+from automotive.bus.qos import WRITER_REPRESENTATION
+from automotive.sim import lfsr
 from automotive.types.CameraImage import CameraImageData_64KiB
+from automotive.wire.camera import FrameWriter
+from automotive.wire.shm import SharedFrameReader, SharedFrameWriter, SharedMemory
 
 ROOT = Path(__file__).resolve().parent.parent
 SHORT_BLOCKING_QOS = ROOT / "tests" / "data" / "camera_short_blocking_qos.xml"

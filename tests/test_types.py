@@ -8,7 +8,7 @@ import pytest
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.topic import Topic
 
-from automotive import bounds
+from automotive.cyclone import bounds
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.automotive import ShapeType
 from automotive.types.builtin_interfaces.msg.dds_ import Time_
@@ -139,7 +139,8 @@ def test_over_bound_is_refused_with_a_clear_message(member: str) -> None:
 def test_over_bound_is_refused_by_the_serializer_too(member: str) -> None:
     """The generated types keep the IDL bounds (except the one Cyclone cannot express: see test_fastpath)."""
     if member == "PointCloud2_.data_":
-        pytest.skip("unbounded in the generated type; enforced by automotive.bounds and automotive.fastpath")
+        pytest.skip("unbounded in the generated type; enforced by automotive.cyclone.bounds and "
+                    "automotive.cyclone.fastpath")
     with pytest.raises(Exception):  # noqa: B017 - Cyclone raises a bare Exception
         OVER_BOUND[member].serialize()
 

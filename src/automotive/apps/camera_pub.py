@@ -1,8 +1,8 @@
 """Rear-view camera: publishes frames of a 32-bit LFSR test pattern that the subscriber verifies byte by byte.
 
-Data flow:  LFSR pattern (automotive.lfsr)  -->  CameraImage::CameraImageData on CameraImageData (keyed by
+Data flow:  LFSR pattern (automotive.sim.lfsr)  -->  CameraImage::CameraImageData on CameraImageData (keyed by
 config.ddsId), one frame every config.pubInterval ms (0: as fast as flow control allows), seqnum 1, 2, 3, ...
-With config.transport=shm the frames go to same-host subscribers through shared memory (automotive.shm), and on DDS
+With config.transport=shm the frames go to same-host subscribers through shared memory (automotive.wire.shm), and on DDS
 only while a DDS reader is matched.
 """
 
@@ -16,15 +16,15 @@ from typing import Any
 
 from cyclonedds.core import DDSException
 
-from automotive import shm
-from automotive.app import Application, run
-from automotive.camera import (
+from automotive.bus.app import Application, run
+from automotive.sim.lfsr import FramePattern
+from automotive.wire import shm
+from automotive.wire.camera import (
     FrameWriter,
     frame_size,
     frame_type,
     tune_process_for_large_frames,
 )
-from automotive.lfsr import FramePattern
 
 ACK_TIMEOUT_S = 10.0  # at the end: how long reliable readers get to acknowledge the last frames
 
@@ -61,7 +61,7 @@ def body(app: Application) -> None:
     wait_subscribers = app.props.get_int("config.waitSubscribers", 1, minimum=0)
     size = frame_size(data_type)
 
-    memory = shm.open_for(app, "Camera", "CameraImageData")
+    memory = shm.open_for(app.props, app.name, app.domain_id, app.topic_name("Camera", "CameraImageData"), app.log)
 
     subscribers = SubscriberCount()
     # The pattern stream is generated once; each frame is a window of it, written without a copy.
@@ -107,6 +107,7 @@ def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], i
             window_start, window_frames = now, 0
 
     acknowledged = writer.writer.wait_for_acks(int(ACK_TIMEOUT_S * 1e9)) if written else True
+    app.stats.record("totals", published=written, acknowledged=acknowledged)
     app.log.info("published %d frames in total%s", written,
                  "" if acknowledged else f" (not all acknowledged within {ACK_TIMEOUT_S:g} s)")
 

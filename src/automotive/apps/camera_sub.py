@@ -5,8 +5,8 @@ latency min/avg/max, MB/s, mismatches, gaps), the totals on exit, and with --plo
 
 Latency is the receive time minus the frame's sec_/nanosec_ stamp, both on this host's clock (publisher and
 subscriber on one host, or hosts with synchronised clocks). Each image is compared with the LFSR pattern that the
-publisher sent for its seqnum (automotive.lfsr); a jump in seqnum counts the frames missing in between as gaps.
-With config.transport=shm the frames come through shared memory from a publisher on this host (automotive.shm),
+publisher sent for its seqnum (automotive.sim.lfsr); a jump in seqnum counts the frames missing in between as gaps.
+With config.transport=shm the frames come through shared memory from a publisher on this host (automotive.wire.shm),
 viewed in place and read-only; no DDS reader is created, so the publisher does not write them on DDS for us.
 """
 
@@ -22,17 +22,18 @@ from typing import Any
 
 from cyclonedds.core import GuardCondition, WaitSet
 
-from automotive import shm
-from automotive.app import Application, run
-from automotive.camera import (
+from automotive.bus.app import Application, run
+from automotive.bus.errors import ConfigError
+from automotive.bus.stats import Stats
+from automotive.sim.lfsr import FramePattern
+from automotive.wire import shm
+from automotive.wire.camera import (
     Frame,
     FrameReader,
     frame_size,
     frame_type,
     tune_process_for_large_frames,
 )
-from automotive.errors import ConfigError
-from automotive.lfsr import FramePattern
 
 TAKE_LIMIT = 16  # samples per take: a burst is handled in one call without holding many frames at once
 
@@ -106,7 +107,7 @@ class CameraStats:
                          frame.seqnum)
         self.last_seqnum[frame.id] = frame.seqnum
 
-    def report_window(self, log: Any, force: bool = False) -> None:
+    def report_window(self, log: Any, force: bool = False, stats: Stats | None = None) -> None:
         """Log the statistics line once a second (or now, with ``force``), if frames arrived."""
         now = time.monotonic()
         elapsed = now - self.window_start
@@ -114,11 +115,35 @@ class CameraStats:
             return
         window = self.window
         if window.samples:
+            if stats is not None:
+                stats.record("window", samples=window.samples, size=self.size, seconds=round(elapsed, 6),
+                             latency_ms=window.latency_ms(), mb_per_s=window.bytes / elapsed / 1e6 if elapsed else 0.0,
+                             mismatches=window.mismatches, gaps=window.gaps)
             log.info("samples=%d size=%d latency_ms(min/avg/max)=%s MB/s=%.1f mismatches=%d gaps=%d",
                      window.samples, self.size, window.latency_ms(), window.bytes / elapsed / 1e6 if elapsed else 0.0,
                      window.mismatches, window.gaps)
         self.window = Window()
         self.window_start = now
+
+    def totals(self) -> dict[str, Any]:
+        """The whole run's figures: what totals_line says, as numbers (None where no frame came)."""
+        total = self.total
+        seconds = 0.0
+        if self.first_receive_ns is not None and self.last_receive_ns is not None:
+            seconds = (self.last_receive_ns - self.first_receive_ns) / 1e9
+        rate = (total.samples - 1) / seconds if seconds > 0 else 0.0
+        ordered = sorted(self.latencies_ns)
+
+        def percentile(fraction: float) -> float | None:
+            return ordered[min(len(ordered) - 1, int(fraction * len(ordered)))] / 1e6 if ordered else None
+
+        return {"samples": total.samples, "size": self.size, "seconds": seconds, "samples_per_s": rate,
+                "mb_per_s": rate * self.size / 1e6,
+                "latency_ms": {"min": total.latency_min_ns / 1e6 if total.latency_min_ns is not None else None,
+                               "avg": total.latency_sum_ns / total.samples / 1e6 if total.samples else None,
+                               "p50": percentile(0.5), "p99": percentile(0.99),
+                               "max": total.latency_max_ns / 1e6 if total.latency_max_ns is not None else None},
+                "mismatches": total.mismatches, "mismatched_bytes": total.mismatched_bytes, "gaps": total.gaps}
 
     def totals_line(self) -> str:
         total = self.total
@@ -186,7 +211,7 @@ def body(app: Application) -> None:
     plot_path: Path | None = app.args.plot
     check_plot_path(plot_path)
     exit_with_publisher: bool = app.args.exit_with_publisher
-    memory = shm.open_for(app, "Camera", "CameraImageData")
+    memory = shm.open_for(app.props, app.name, app.domain_id, app.topic_name("Camera", "CameraImageData"), app.log)
     if memory is not None:
         try:
             view_shared_memory(app, memory, data_type, plot_path, exit_with_publisher)
@@ -234,7 +259,8 @@ def show(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups
     """Verify frames until stopped, then print the totals and write the plot."""
     view(app, frames, wake_ups, pattern, stats)
     size = stats.size
-    stats.report_window(app.log, force=True)
+    stats.report_window(app.log, force=True, stats=app.stats)
+    app.stats.record("totals", **stats.totals())
     app.log.info("%s", stats.totals_line())
     if plot_path is not None and stats.total.samples:
         write_plot(plot_path, stats, f"{data_type.__name__} ({size} bytes): {stats.total.samples} frames")
@@ -260,7 +286,7 @@ def view(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups
                     app.tick()
                     if not app.running:
                         break
-        stats.report_window(app.log)
+        stats.report_window(app.log, stats=app.stats)
         if leaving:
             app.log.info("the publisher left")
             app.stop()

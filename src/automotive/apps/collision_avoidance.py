@@ -20,9 +20,9 @@ import time
 
 from cyclonedds.pub import DataWriter
 
-from automotive.app import Application, run
-from automotive.clock import now_timestamp
-from automotive.ownership import OwnerTracker, StallGuard
+from automotive.bus.app import Application, run
+from automotive.bus.clock import now_timestamp
+from automotive.bus.ownership import OwnerTracker, StallGuard
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, IndicatorStatusEnum
 from automotive.types.Platform import PlatformControl, PlatformStatus
@@ -63,6 +63,7 @@ class Commands:
 
     def __init__(self, app: Application, writer: DataWriter[PlatformControl], redundant: bool):
         self.log = app.log
+        self.stats = app.stats
         self.writer = writer
         self.reader = app.reader("PlatformControl", PlatformControl, "PlatformControl") if redundant else None
         self.joined = self.reader is None
@@ -76,6 +77,7 @@ class Commands:
         seen = [command.sample_id for command in self.reader.take(N=1000) if isinstance(command, PlatformControl)]
         if seen and not self.joined:
             self.log.info("joined: the owner's last command is %d; ours follow it", max(seen))
+            self.stats.record("joined", after=max(seen))
             self.joined = True
         self.last_id = max([self.last_id, *seen])
 
@@ -94,6 +96,7 @@ class Commands:
                 return None
             self.log.info("joined: no other instance's command within %g s; ours start at %d", JOIN_S,
                           self.last_id + 1)
+            self.stats.record("joined", after=self.last_id)
             self.joined = True
         self.last_id += 1
         return self.last_id
@@ -105,7 +108,7 @@ def body(app: Application) -> None:
     status_reader = app.reader("PlatformStatus", PlatformStatus, "PlatformStatus")
     alert_writer = app.writer("Alerts", DriverAlerts, "AlertTopic")
     control_writer = app.writer("PlatformControl", PlatformControl, "PlatformControl")
-    objects_owner = OwnerTracker(objects_reader, app.log)
+    objects_owner = OwnerTracker(objects_reader, app.log, app.stats)
     commands = Commands(app, control_writer, app.redundant)
     stall_guard = StallGuard(control_writer, app.log)  # redundant mode: no answers to lists missed while stalled
 
@@ -124,10 +127,12 @@ def body(app: Application) -> None:
                 alert_writer.write(ATTENTION)
                 if not alert_active:
                     app.log.info("ALERT: driver attention needed (an object taller than %.1f m)", alert_size)
+                    app.stats.record("alert", state="alert")
                 alert_active = True
             elif alert_active:
                 alert_writer.write(ALL_CLEAR)
                 app.log.info("all clear: no object taller than %.1f m", alert_size)
+                app.stats.record("alert", state="clear")
                 alert_active = False
             sample_id = commands.next_id()
             if sample_id is None:
@@ -137,6 +142,7 @@ def body(app: Application) -> None:
             app.log.info("command %d: speed %.2f, steer %.2f, blinker %s (%d objects, %d status samples read)",
                          sample_id, command.speed, command.vehicleSteerAngle, command.blinkerStatus.name,
                          len(objects.objects), status_count)
+            app.stats.record("command", sample_id=sample_id)
             app.tick()
 
 

@@ -18,9 +18,9 @@ import os
 import sys
 from typing import Any, Protocol
 
-from automotive.app import Application, run
-from automotive.errors import ConfigError
-from automotive.ownership import OwnerTracker
+from automotive.bus.app import Application, run
+from automotive.bus.errors import ConfigError
+from automotive.bus.ownership import OwnerTracker
 from automotive.types.Alerts import DriverAlerts
 
 ALERT_TEXTS = {
@@ -158,7 +158,7 @@ def body(app: Application) -> None:
             source_alive.append(status.alive_count > 0)
 
     alerts = app.reader("Alerts", DriverAlerts, "AlertTopic", hook=on_status)
-    owner = OwnerTracker(alerts, app.log)
+    owner = OwnerTracker(alerts, app.log, app.stats)
     ui = make_ui(app.args.ui)
     app.log.info("HMI: %s alert box, waiting for alerts", "window" if isinstance(ui, WindowUI) else "console")
 
@@ -185,9 +185,11 @@ def body(app: Application) -> None:
                 if texts != shown:  # the writer repeats an active alert; the driver sees each change once
                     if texts:
                         app.log.info("DRIVER ALERT: %s", "; ".join(texts))
+                        app.stats.record("shown", state="alert", texts=texts)
                         ui.show(texts)
                     else:
                         app.log.info("all clear")
+                        app.stats.record("shown", state="clear", texts=[])
                         ui.clear()
                     shown = texts
                 app.tick()

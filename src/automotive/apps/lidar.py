@@ -1,6 +1,6 @@
 """Simulated LiDAR: publishes a point cloud of a scene made of the Shapes Demo circles it sees.
 
-Data flow:  ShapeType on Circle (Shapes Demo, keyed by color)  -->  scene (automotive.pointcloud)
+Data flow:  ShapeType on Circle (Shapes Demo, keyed by color)  -->  scene (automotive.wire.pointcloud)
             scene  -->  sensor_msgs::msg::dds_::PointCloud2_ on rt/LidarTopic, every config.pubInterval ms
 
 Each circle is a sphere of its Shapes Demo colour; YELLOW moves the observer instead. A circle whose instance is
@@ -18,12 +18,13 @@ from typing import Any
 from cyclonedds.core import InstanceState
 from cyclonedds.sub import DataReader
 
-from automotive.app import Application, run
-from automotive.clock import now_seconds_nanoseconds
-from automotive.errors import ConfigError
-from automotive.pointcloud import FRAME_ID, LidarScene, ScanGrid
+from automotive.bus.app import Application, run
+from automotive.bus.clock import now_seconds_nanoseconds
+from automotive.bus.errors import ConfigError
+from automotive.sim.scene import LidarScene, ScanGrid
 from automotive.types.automotive import ShapeType
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
+from automotive.wire.pointcloud import FRAME_ID
 
 GONE_STATES = {
     InstanceState.NotAliveDisposed: "disposed",
@@ -119,6 +120,7 @@ def body(app: Application) -> None:
         render_s += rendered - start
         write_s += written - rendered
         frames += 1
+        app.stats.record("frame", number=frame)
         if log_every and (frame == 1 or frame % log_every == 0):
             spheres = [sphere.color for sphere in scene.spheres]
             app.log.info("frame %d: %d points, %d sphere(s)%s, render %.2f ms, write %.2f ms (mean of %d)",

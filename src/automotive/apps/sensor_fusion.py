@@ -18,9 +18,9 @@ import time
 
 from cyclonedds.sub import DataReader
 
-from automotive.app import Application, run
-from automotive.clock import now_timestamp
-from automotive.ownership import StallGuard
+from automotive.bus.app import Application, run
+from automotive.bus.clock import now_timestamp
+from automotive.bus.ownership import StallGuard
 from automotive.types.Common import ClassificationEnum
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE, RangeModeEnum, SensorObject, SensorObjectList
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
@@ -82,6 +82,7 @@ def body(app: Application) -> None:
         published = app.tick()
         app.log.info("published list %d: %d object(s) from %d vision sample(s) of sensor(s) %s",
                      published, len(objects), len(pending), ",".join(map(str, sensors)))
+        app.stats.record("list", number=published, objects=len(objects), samples=len(pending), sensors=sensors)
         pending.clear()
 
 

@@ -16,10 +16,10 @@ from __future__ import annotations
 import sys
 from typing import Any
 
-from automotive.app import Application, run
-from automotive.clock import format_timestamp, now_timestamp
-from automotive.csvdata import cycle_rows, load_platform_rows
-from automotive.ownership import OwnerTracker
+from automotive.bus.app import Application, run
+from automotive.bus.clock import format_timestamp, now_timestamp
+from automotive.bus.ownership import OwnerTracker
+from automotive.sim.csvdata import cycle_rows, load_platform_rows
 from automotive.types.Common import IndicatorStatusEnum
 from automotive.types.Platform import PlatformControl, PlatformStatus
 
@@ -36,7 +36,7 @@ def body(app: Application) -> None:
 
     control_reader = app.reader("PlatformControl", PlatformControl, "PlatformControl", hook=on_status)
     status_writer = app.writer("PlatformStatus", PlatformStatus, "PlatformStatus")
-    owner = OwnerTracker(control_reader, app.log)
+    owner = OwnerTracker(control_reader, app.log, app.stats)
     executed: int | None = None  # sample_id of the last command executed
     app.log.info("vehicle platform: %d rows, status every %.0f ms", len(rows), interval_s * 1000)
 
@@ -57,6 +57,7 @@ def body(app: Application) -> None:
                                 command.sample_id, owner.owner_name, executed)
                 continue
             executed = command.sample_id
+            app.stats.record("command", sample_id=command.sample_id, owner=owner.owner_name)
             app.log.info("command %d stamped %s: speed %.2f, steer %.2f, blinker %s", command.sample_id,
                          format_timestamp(command.timestamp), command.speed, command.vehicleSteerAngle,
                          IndicatorStatusEnum(command.blinkerStatus).name)
@@ -66,6 +67,7 @@ def body(app: Application) -> None:
             timestamp=now_timestamp(), vehSpd=row.vehSpd, blinkerStatus=blinker, posGasPedal=row.posGasPedal,
             velocity=row.velocity, yawRate=row.yawRate, vehicleSteerAngle=steer_angle))
         app.log.info("status %d: %.1f km/h, blinker %s, steer %.2f", iteration, row.vehSpd, blinker.name, steer_angle)
+        app.stats.record("status", number=iteration)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import sys
 
-from automotive.app import Application, run
-from automotive.clock import now_timestamp
-from automotive.csvdata import cycle_rows, load_vision_rows
+from automotive.bus.app import Application, run
+from automotive.bus.clock import now_timestamp
+from automotive.sim.csvdata import cycle_rows, load_vision_rows
 from automotive.types.Vision import VisionSensor
 
 
@@ -23,6 +23,7 @@ def body(app: Application) -> None:
     for iteration, objects in zip(app.periodic(interval_s), cycle_rows(rows)):
         writer.write(VisionSensor(id=sensor_id, timestamp=now_timestamp(), objects=objects))
         app.log.info("published sample %d: %d object(s)", iteration, len(objects))
+        app.stats.record("sample", number=iteration, objects=len(objects))
 
 
 def main(argv: list[str] | None = None) -> int:

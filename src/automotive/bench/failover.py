@@ -41,11 +41,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from automotive.cli import ArgumentParser, run_in_project_venv  # noqa: E402
+from automotive.bus.cli import ArgumentParser, run_in_project_venv  # noqa: E402
 
 run_in_project_venv(__file__, sys.argv[1:])  # Cyclone DDS is in the project's .venv
 
-from automotive.network import NetworkConfig  # noqa: E402
+from automotive.bus.network import NetworkConfig  # noqa: E402
 
 PRIMARY, STANDBY = 20, 10
 LEASE_MS = 250

@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Time serialize and deserialize of large octet members with and without automotive.fastpath (prints, no checks).
+"""Time serialize and deserialize of large octet members with and without automotive.cyclone.fastpath (prints, no
+checks).
 
 Rows: a 4 MiB unbounded sequence<octet> (a type declared here), PointCloud2_ at POINT_CLOUD_MAX_DATA, and the
 4 MiB camera frame (octet[N] array, already one block in Cyclone; the fast path saves a copy when reading).
@@ -17,7 +18,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from automotive.cli import ArgumentParser, run_in_project_venv  # noqa: E402
+from automotive.bus.cli import ArgumentParser, run_in_project_venv  # noqa: E402
 
 run_in_project_venv(__file__, sys.argv[1:])  # Cyclone DDS and numpy are in the project's .venv
 
@@ -26,7 +27,7 @@ import cyclonedds.idl.annotations as annotate  # noqa: E402
 import cyclonedds.idl.types as types  # noqa: E402
 from cyclonedds.idl import IdlStruct  # noqa: E402
 
-from automotive import fastpath  # noqa: E402
+from automotive.cyclone import fastpath  # noqa: E402
 from automotive.types.builtin_interfaces.msg.dds_ import Time_  # noqa: E402
 from automotive.types.CameraImage import CameraImageData_4MiB  # noqa: E402
 from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_, PointField_  # noqa: E402

@@ -45,11 +45,11 @@ SHM_PREFIX = f"benchlarge{os.getpid()}_"  # our iceoryx2 files only; removed at 
 TOOLS = ("ours", "ours-shm", "ddsperf")
 sys.path.insert(0, str(ROOT))
 
-from automotive.cli import ArgumentParser, run_in_project_venv  # noqa: E402
+from automotive.bus.cli import ArgumentParser, run_in_project_venv  # noqa: E402
 
 run_in_project_venv(__file__, sys.argv[1:])  # Cyclone DDS and numpy are in the project's .venv
 
-from automotive.network import NetworkConfig  # noqa: E402
+from automotive.bus.network import NetworkConfig  # noqa: E402
 
 
 # Loopback only, no multicast; every participant on this host is found through 127.0.0.1.
@@ -161,11 +161,11 @@ def run_ours(size_name: str, duration: float, domain: int, env: dict[str, str], 
     if shared_memory:
         common += ["-D", "config.transport=shm", "-D", f"config.shmPrefix={SHM_PREFIX}"]
     python = [*(launcher or []), sys.executable]
-    sub = Proc("camera_sub", [*python, "-m", "apps.camera_sub", *common, "--exit-with-publisher"], env)
+    sub = Proc("camera_sub", [*python, "-m", "automotive.apps.camera_sub", *common, "--exit-with-publisher"], env)
     pub: Proc | None = None
     try:
         sub.wait_for("viewing", START_TIMEOUT)
-        pub = Proc("camera_pub", [*python, "-m", "apps.camera_pub", *common,
+        pub = Proc("camera_pub", [*python, "-m", "automotive.apps.camera_pub", *common,
                                   "-D", f"config.pubInterval={interval_ms:g}"], env)
         sub.wait_for(r"samples=\d+ size=", START_TIMEOUT)  # the first once-a-second report: data flows
         start, end, result.cpu_pub, result.cpu_sub = measure_window(pub, sub, duration)

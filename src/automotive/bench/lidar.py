@@ -7,7 +7,7 @@ Per size it prints the median over many frames, in milliseconds, of
   + message      render moving, then the PointCloud2 with its data_ as one bytes block
 and with --write, over loopback (two participants on --domain, a reader matched, the QoS of --profile: by default
 the Lidar profile the application uses), of
-  write fast     DataWriter.write of that message with automotive.fastpath enabled (data_ in one block)
+  write fast     DataWriter.write of that message with automotive.cyclone.fastpath enabled (data_ in one block)
   write stock    the same with Cyclone's own serializer (data_ one element at a time; fewer frames)
   frame          circles moved, render, message, write fast: what the LiDAR application does per period
                  (without --write: render moving + message)
@@ -37,18 +37,18 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from automotive.cli import ArgumentParser, run_in_project_venv  # noqa: E402
+from automotive.bus.cli import ArgumentParser, run_in_project_venv  # noqa: E402
 
 run_in_project_venv(__file__, sys.argv[1:])  # Cyclone DDS and numpy are in the project's .venv
 
-from automotive.network import NetworkConfig  # noqa: E402
+from automotive.bus.network import NetworkConfig  # noqa: E402
 
 # Before any participant exists: all traffic of this benchmark stays on loopback.
 os.environ["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()
 
-from automotive import fastpath  # noqa: E402
-from automotive.pointcloud import LidarScene, ScanGrid  # noqa: E402
-from automotive.qos import QosProfiles  # noqa: E402
+from automotive.bus.qos import QosProfiles  # noqa: E402
+from automotive.cyclone import fastpath  # noqa: E402
+from automotive.sim.scene import LidarScene, ScanGrid  # noqa: E402
 from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_  # noqa: E402
 
 SIZES = (("1x", 1, 1), ("4x", 2, 2), ("16x", 4, 4))  # (label, azimuth factor, polar factor)

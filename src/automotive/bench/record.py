@@ -3,9 +3,9 @@
 
     scripts/bench-record [--seconds 60] [--domain 86] [--compression none|lz4|zstd] [--keep FILE]
 
-Starts apps.record, then every application of the system on a private domain, loopback only: vision, lidar (a log
-line per frame), sensor_fusion, collision_avoidance, vehicle_platform, hmi (console), camera_pub at 30 frames/s of
-4 MiB (it waits for its two readers: camera_sub and the recorder) with camera_sub, and a Shapes Demo circle. After
+Starts automotive.tools.record, then every application of the system on a private domain, loopback only: vision, lidar
+(a log line per frame), sensor_fusion, collision_avoidance, vehicle_platform, hmi (console), camera_pub at 30 frames/s
+of 4 MiB (it waits for its two readers: camera_sub and the recorder) with camera_sub, and a Shapes Demo circle. After
 --seconds the producers are stopped, then the recorder (Ctrl-C: it finishes its file).
 
 Per topic: samples published (the producer's own numbered log lines, counted from the moment the recorder matched
@@ -37,7 +37,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from automotive.cli import ArgumentParser, run_in_project_venv  # noqa: E402
+from automotive.bus.cli import ArgumentParser, run_in_project_venv  # noqa: E402
 
 run_in_project_venv(__file__, sys.argv[1:])  # Cyclone DDS, mcap and the applications' dependencies are in .venv
 
@@ -117,8 +117,8 @@ def file_checks(path: Path) -> tuple[int, int]:
     """(camera frames missing between the first and last recorded seqnum, camera frames recorded)."""
     from mcap.reader import make_reader
 
-    from automotive.camera import FrameCodec
     from automotive.types.CameraImage import CameraImageData
+    from automotive.wire.camera import FrameCodec
 
     codec = FrameCodec(CameraImageData)
     seqnums = []

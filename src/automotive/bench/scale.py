@@ -4,9 +4,9 @@
     scripts/bench-scale                      N = 1, 10, 50
     scripts/bench-scale --sizes 1,20 --window 10 --domain 85
 
-For each N: sensor_fusion starts and creates its reader; then N vision processes (python -m apps.vision, config.sensorId
-1..N, as `scripts/launch --vision-sensors N` starts them) start at once (or --stagger S seconds apart). Measured,
-from each process's output as it arrives:
+For each N: sensor_fusion starts and creates its reader; then N vision processes (python -m automotive.apps.vision,
+config.sensorId 1..N, as `scripts/launch --vision-sensors N` starts them) start at once (or --stagger S seconds apart).
+Measured, from each process's output as it arrives:
   start       seconds from starting the N processes until every one has created its writer ("vision sensor i:")
   discovery   milliseconds from the last writer created until sensor fusion's reader has matched all N
               ("[VisionTopic] reader matched a writer: N writer(s) now"); negative when the match was seen first
@@ -40,11 +40,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from automotive.cli import ArgumentParser, run_in_project_venv  # noqa: E402
+from automotive.bus.cli import ArgumentParser, run_in_project_venv  # noqa: E402
 
 run_in_project_venv(__file__, sys.argv[1:])  # Cyclone DDS and numpy are in the project's .venv
 
-from automotive.network import NetworkConfig  # noqa: E402
+from automotive.bus.network import NetworkConfig  # noqa: E402
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE  # noqa: E402
 
 CLOCK_TICKS = os.sysconf("SC_CLK_TCK")

@@ -11,9 +11,11 @@ and runs its loop::
     def main(argv: list[str] | None = None) -> int:
         return run("vision", "Publishes vision sensor objects.", vision, argv)
 
-Common flags: ``--properties FILE``, ``-D key=value`` (repeatable), ``--count N`` (stop after N iterations, 0 = run
-forever), ``--domain``, ``--network``, ``--interface``, ``--peers``. Ctrl-C and SIGTERM end the loop; the entities are
-deleted and the exit code is 0. Bad input ends with one line on stderr and exit code 2.
+Common flags: ``--properties FILE`` (default: the shipped ``properties/<name>.properties`` of
+:mod:`automotive.config`), ``-D key=value`` (repeatable), ``--count N`` (stop after N iterations, 0 = run forever),
+``--domain``, ``--network``, ``--interface``, ``--peers``, ``--stats FILE`` (status as JSON lines,
+:mod:`automotive.bus.stats`). Ctrl-C and SIGTERM end the loop; the entities are deleted and the exit code is 0. Bad
+input ends with one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -33,22 +35,27 @@ from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, Sample
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
-from automotive.bounds import BoundError
-from automotive.cli import ArgumentParser
-from automotive.endpoints import Databus
-from automotive.errors import ConfigError
-from automotive.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, user_uri
-from automotive.properties import Properties
-from automotive.qos import QosProfiles, profile_name
-from automotive.status import EventHook
+from automotive import config, cyclone
+from automotive.bus.cli import (
+    EXIT_BAD_INPUT,
+    ArgumentParser,
+    add_domain_option,
+    add_network_options,
+    add_override_option,
+    add_stats_option,
+)
+from automotive.bus.endpoints import Databus
+from automotive.bus.errors import ConfigError
+from automotive.bus.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, user_uri
+from automotive.bus.properties import Properties
+from automotive.bus.qos import QosProfiles, profile_name
+from automotive.bus.stats import Stats
+from automotive.bus.status import EventHook
+from automotive.cyclone.bounds import BoundError
 
 T = TypeVar("T")
 
-PROJECT_ROOT = Path(__file__).resolve().parent.parent
-PROPERTIES_DIR = PROJECT_ROOT / "properties"
-DEFAULT_QOS_FILE = PROJECT_ROOT / "qos" / "automotive_qos.xml"
 DEFAULT_LIBRARY = "AutomotiveLibrary"
-EXIT_BAD_INPUT = 2
 # Redundant mode: an endpoint whose QoS profile P has a companion P + REDUNDANT_SUFFIX in the library uses it.
 REDUNDANT_SUFFIX = "Redundant"
 DEFAULT_OWNERSHIP_STRENGTH = 10
@@ -57,21 +64,19 @@ ArgumentAdder = Callable[[argparse.ArgumentParser], None]
 
 
 def default_properties_path(name: str) -> Path:
-    return PROPERTIES_DIR / f"{name}.properties"
+    return config.properties_file(name)
 
 
 def build_parser(name: str, description: str, add_arguments: ArgumentAdder | None = None) -> argparse.ArgumentParser:
     parser = ArgumentParser(prog=name, description=description)
     parser.add_argument("--properties", type=Path, default=None,
-                        help=f"properties file (default: properties/{name}.properties)")
-    parser.add_argument("-D", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a property (repeatable)")
+                        help=f"properties file (default: the shipped properties/{name}.properties; "
+                             "automotive-config export DIR writes an editable copy)")
+    add_override_option(parser)
     parser.add_argument("--count", type=int, default=0, help="stop after N iterations (0: run until stopped)")
-    parser.add_argument("--domain", type=int, default=None, help="DDS domain id (overrides config.domainId)")
-    parser.add_argument("--network", choices=["loopback", "lan", "peers"], default=None,
-                        help="single host on loopback (default), multicast LAN, or unicast peers")
-    parser.add_argument("--interface", default=None, help="network interface name or address (config.interface)")
-    parser.add_argument("--peers", default=None, help="comma-separated unicast peers, multicast off (config.peers)")
+    add_domain_option(parser)
+    add_network_options(parser)
+    add_stats_option(parser)
     if add_arguments is not None:
         add_arguments(parser)
     return parser
@@ -97,7 +102,7 @@ class Application:
                 props.override([f"{key}={value}"], f"--{flag}")
         self.domain_id = props.get_int("config.domainId", 0, minimum=0, maximum=232)
         self.library = props.get_str("qos.Library", DEFAULT_LIBRARY)
-        self.profiles = QosProfiles(props.get_path("qos.File", str(DEFAULT_QOS_FILE)))
+        self.profiles = QosProfiles(props.get_path("qos.File", str(config.qos_file())))
         # Redundant mode (hot-standby sensor_fusion and collision_avoidance, exclusive ownership): opt-in, because
         # exclusive endpoints do not match the shared ones of the default system and of other vendors' defaults.
         self.redundant = props.get_bool("config.redundant", False)
@@ -107,12 +112,14 @@ class Application:
         # After this many seconds, endpoints that matched nothing are reported: the sign of a wrong peer list,
         # domain id or QoS (0 turns the report off).
         self.match_report_s = props.get_float("config.matchReport", 10.0, minimum=0)
+        self.stats = Stats(getattr(args, "stats", None), self.instance_name)
         self.network = self._network_config()
         if self.network is None:
             log.info("network: CYCLONEDDS_URI from the environment")
         else:
             log.info("network: %s", self.network.describe())
-        self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, self.instance_name)
+        self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, self.instance_name,
+                           self.stats)
         self.guard = GuardCondition(self.bus.participant)
         self._ready = False
         self.iterations = 0
@@ -172,6 +179,7 @@ class Application:
             where = ", ".join(f"'{key}' ({self.props.where(key)})" for key in unused)
             raise ConfigError(f"{self.props.source}: unknown key(s) for {self.name}: {where}")
         self._ready = True
+        self.stats.record("ready")
         if self.match_report_s > 0:
             threading.Thread(target=self._report_unmatched, name="match-report", daemon=True).start()
 
@@ -226,6 +234,7 @@ class Application:
 
     def close(self) -> None:
         self.bus.close()
+        self.stats.close()
 
 
 def setup_logging(name: str) -> logging.Logger:
@@ -263,6 +272,7 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
 
     previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
+        cyclone.start(log)  # the fast paths, once, before any entity; or one line saying why they are off
         app = Application(name, args, load_properties(name, args), log)
         body(app)
         return 0

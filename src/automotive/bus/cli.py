@@ -1,38 +1,28 @@
-"""Command-line plumbing shared by the applications, the launcher and the benchmark scripts.
+"""Command-line plumbing shared by every program: the applications, the tools, the launcher and the benchmarks.
 
 - ``ArgumentParser``: bad arguments end with one line on stderr and exit code 2 (argparse's usage block is for
   ``--help``, not for a typo).
-- ``run_in_project_venv``: a script started with any Python (``scripts/bench-lidar`` runs the system's python3 through
-  its shebang) installs the project once (scripts/setup) and restarts itself with the project's ``.venv`` Python,
-  where Cyclone DDS and the other pinned dependencies are.
+- The options several programs share, declared once: ``add_domain_option``, ``add_network_options``,
+  ``add_override_option``, ``add_log_dir_option``, ``add_stats_option``.
 
-This module imports nothing beyond the standard library: it runs before the project's dependencies can be imported.
+The standard library only.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any, NoReturn
 
-ROOT = Path(__file__).resolve().parent.parent
-VENV = ROOT / ".venv"
 EXIT_BAD_INPUT = 2
+NETWORK_MODES = ("loopback", "lan", "peers")
 
 
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse with a one-line error: ``prog: message (prog --help shows the usage)``, exit code 2.
-
-    A script of scripts/ is named as the README prints it (``scripts/bench-lidar``).
-    """
+    """argparse with a one-line error: ``prog: message (prog --help shows the usage)``, exit code 2."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
-        script = Path(sys.argv[0]).resolve()
-        if "prog" not in kwargs and script.parent == ROOT / "scripts":
-            kwargs["prog"] = f"scripts/{script.name}"
         super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
@@ -40,21 +30,33 @@ class ArgumentParser(argparse.ArgumentParser):
         sys.exit(EXIT_BAD_INPUT)
 
 
-def in_project_venv() -> bool:
-    return Path(sys.prefix).resolve() == VENV.resolve()
+def add_domain_option(parser: argparse.ArgumentParser, default: int | None = None,
+                      help: str = "DDS domain id (overrides config.domainId)") -> None:
+    if default is not None:
+        help = f"{help} (default {default})"
+    parser.add_argument("--domain", type=int, default=default, help=help)
 
 
-def run_in_project_venv(script: str | Path, argv: list[str]) -> None:
-    """Return at once inside the project's .venv; else run scripts/setup and re-execute ``script`` there.
+def add_network_options(parser: argparse.ArgumentParser, for_every: str = "") -> None:
+    """``--network``, ``--interface``, ``--peers`` (config.network, config.interface, config.peers)."""
+    parser.add_argument("--network", choices=NETWORK_MODES, default=None,
+                        help=f"{for_every}single host on loopback (default), multicast LAN, or unicast peers")
+    parser.add_argument("--interface", default=None,
+                        help=f"{for_every}network interface name or address (config.interface)")
+    parser.add_argument("--peers", default=None, metavar="H1,H2",
+                        help=f"{for_every}comma-separated unicast peers, multicast off (config.peers)")
 
-    Ends the process with one line and exit code 2 if the set-up fails.
-    """
-    if in_project_venv():
-        return
-    result = subprocess.run(["bash", str(ROOT / "scripts" / "setup")], stdout=sys.stderr)
-    python = VENV / "bin" / "python"
-    if result.returncode != 0 or not python.is_file():
-        print(f"{Path(script).name}: scripts/setup failed (exit code {result.returncode}); fix what it reports",
-              file=sys.stderr)
-        sys.exit(EXIT_BAD_INPUT)
-    os.execv(str(python), [str(python), str(Path(script).resolve()), *argv])
+
+def add_override_option(parser: argparse.ArgumentParser, metavar: str = "KEY=VALUE",
+                        help: str = "override a property (repeatable)") -> None:
+    parser.add_argument("-D", dest="overrides", action="append", default=[], metavar=metavar, help=help)
+
+
+def add_log_dir_option(parser: argparse.ArgumentParser, default: Path | None = None,
+                       help: str = "write every process's output there") -> None:
+    parser.add_argument("--log-dir", type=Path, default=default, help=help)
+
+
+def add_stats_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--stats", type=Path, default=None, metavar="FILE",
+                        help="append the periodic status as JSON lines to FILE (one object a line)")

@@ -16,11 +16,12 @@ from cyclonedds.qos import DataReaderQos, DataWriterQos, Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
-from automotive import bounds, fastpath
-from automotive.errors import ConfigError
-from automotive.network import NetworkConfig, user_uri
-from automotive.qos import QosProfiles
-from automotive.status import EventHook, StatusListener
+from automotive.bus.errors import ConfigError
+from automotive.bus.network import NetworkConfig, user_uri
+from automotive.bus.qos import QosProfiles
+from automotive.bus.stats import Stats
+from automotive.bus.status import EventHook, StatusListener
+from automotive.cyclone import bounds
 
 T = TypeVar("T")
 
@@ -37,9 +38,9 @@ class Databus:
     """One participant of one application, with its endpoints."""
 
     def __init__(self, domain_id: int, profiles: QosProfiles, library: str, log: logging.Logger,
-                 network: NetworkConfig | None = None, name: str = "automotive"):
-        fastpath.enable()  # octet data as one block; before any entity is created
+                 network: NetworkConfig | None = None, name: str = "automotive", stats: Stats | None = None):
         self.name = name
+        self.stats = stats or Stats(None, name)
         self.domain_id = domain_id
         self.profiles = profiles
         self.library = library
@@ -80,7 +81,7 @@ class Databus:
         return topic
 
     def _listener(self, topic_name: str, hook: EventHook | None, exclusive: bool = False) -> StatusListener:
-        listener = StatusListener(topic_name, self.log, hook, exclusive)
+        listener = StatusListener(topic_name, self.log, hook, exclusive, self.stats)
         self._listeners.append(listener)  # Cyclone keeps only a C reference: keep the Python object alive
         return listener
 

@@ -21,7 +21,7 @@ import socket
 from dataclasses import dataclass, field
 from xml.sax.saxutils import quoteattr
 
-from automotive.errors import ConfigError
+from automotive.bus.errors import ConfigError
 
 LOOPBACK = "loopback"
 LAN = "lan"

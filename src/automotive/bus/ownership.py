@@ -17,15 +17,18 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy
 from cyclonedds.sub import DataReader
 
+from automotive.bus.stats import Stats
+
 T = TypeVar("T")
 
 
 class OwnerTracker:
     """Follows the writer of the samples an application takes; does nothing for a SHARED reader."""
 
-    def __init__(self, reader: DataReader[Any], log: logging.Logger):
+    def __init__(self, reader: DataReader[Any], log: logging.Logger, stats: Stats | None = None):
         self.reader = reader
         self.log = log
+        self.stats = stats
         self.topic_name = reader.topic.get_name()
         self.enabled = Policy.Ownership.Exclusive in reader.get_qos()
         self.owner: int | None = None
@@ -50,6 +53,7 @@ class OwnerTracker:
         changed = info.publication_handle != self.owner
         if changed:
             name = self.describe(info.publication_handle)
+            gap_ms: float | None = None
             if self.owner is None:
                 self.log.info("[%s] owner: %s", self.topic_name, name)
             else:
@@ -57,6 +61,9 @@ class OwnerTracker:
                 gap_ms = (info.source_timestamp - self.last_stamp_ns) / 1e6
                 self.log.warning("[%s] owner changed: %s -> %s, %.0f ms after the last sample of the previous owner",
                                  self.topic_name, self.owner_name, name, gap_ms)
+            if self.stats is not None:
+                self.stats.record("owner", topic=self.topic_name, previous=self.owner_name or None, owner=name,
+                                  gap_ms=gap_ms)
             self.owner, self.owner_name = info.publication_handle, name
         self.last_stamp_ns = info.source_timestamp
         return changed

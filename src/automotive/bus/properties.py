@@ -1,66 +1,43 @@
-"""A reader of Java-style ``.properties`` files with typed getters.
+"""Java ``.properties`` files with typed getters.
 
-Syntax (as java.util.Properties): ``key=value``, ``key: value`` or ``key value``; ``#`` and ``!`` start comment lines;
-blank lines are ignored; keys and values are trimmed; a line ending in a backslash continues on the next line; ``\\=``,
-``\\:``, ``\\ ``, ``\\t``, ``\\n`` and ``\\\\`` are escapes.
+The syntax is java.util.Properties' own, parsed by the ``javaproperties`` library: ``key=value``, ``key: value`` or
+``key value``; ``#`` and ``!`` start comment lines; a line ending in a backslash continues on the next line;
+``\\uXXXX``, ``\\t``, ``\\n``, ``\\=``, ``\\:`` and ``\\ `` are escapes. Values are also trimmed at the end (Java keeps
+trailing blanks, which in a hand-edited file are always a mistake).
 """
 
 from __future__ import annotations
 
-import re
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TypeVar
 
-from automotive.errors import ConfigError
+import javaproperties
+
+from automotive.bus.errors import ConfigError
 
 _T = TypeVar("_T")
 _REQUIRED: object = object()
-_ESCAPES = {"t": "\t", "n": "\n", "r": "\r", "f": "\f"}
 _TRUE = {"true", "yes", "on", "1"}
 _FALSE = {"false", "no", "off", "0"}
 
 
-def _unescape(text: str) -> str:
-    return re.sub(r"\\(.)", lambda m: _ESCAPES.get(m.group(1), m.group(1)), text)
-
-
-def _split_key_value(line: str) -> tuple[str, str]:
-    """Split at the first unescaped '=', ':' or whitespace, as Java does."""
-    index = 0
-    while index < len(line):
-        char = line[index]
-        if char == "\\":
-            index += 2
-            continue
-        if char in "=:" or char.isspace():
-            break
-        index += 1
-    key, rest = line[:index], line[index:].lstrip()
-    if rest[:1] in ("=", ":"):
-        rest = rest[1:].lstrip()
-    return _unescape(key), _unescape(rest.rstrip())
-
-
-def _logical_lines(text: str) -> Iterable[tuple[int, str]]:
-    """Yield (first line number, joined line) with continuation lines joined and comments dropped."""
-    pending: list[str] = []
-    start = 0
-    for number, raw in enumerate(text.splitlines(), start=1):
-        line = raw.strip() if not pending else raw.lstrip()
-        if not pending:
-            if not line or line[0] in "#!":
-                continue
-            start = number
-        trailing = len(line) - len(line.rstrip("\\"))
-        if trailing % 2 == 1:  # an odd number of backslashes: the last one continues the line
-            pending.append(line[:-1])
-            continue
-        pending.append(line)
-        yield start, "".join(pending)
-        pending = []
-    if pending:
-        yield start, "".join(pending)
+def _parse(text: str, source: str) -> dict[str, str]:
+    """Key/value pairs of a properties text; a ConfigError names the file and line of a malformed entry."""
+    values: dict[str, str] = {}
+    line = 1
+    try:
+        for element in javaproperties.parse(text):
+            if isinstance(element, javaproperties.KeyValue):
+                if not element.key:
+                    first = element.source.splitlines()[0].strip() if element.source else ""
+                    raise ConfigError(f"{source}:{line}: a line has a value but no key: '{first}'")
+                values[element.key] = element.value.rstrip()
+            line += element.source.count("\n") + element.source.count("\r") - element.source.count("\r\n")
+    except javaproperties.InvalidUEscapeError as error:
+        raise ConfigError(f"{source}:{line}: invalid \\u escape '{error.escape}' (expected \\u and 4 hex digits)") \
+            from None
+    return values
 
 
 class Properties:
@@ -79,13 +56,7 @@ class Properties:
 
     @classmethod
     def parse(cls, text: str, source: str = "<properties>", folder: Path | None = None) -> Properties:
-        values: dict[str, str] = {}
-        for number, line in _logical_lines(text):
-            key, value = _split_key_value(line)
-            if not key:
-                raise ConfigError(f"{source}:{number}: a line has a value but no key: '{line}'")
-            values[key] = value
-        return cls(values, source, folder)
+        return cls(_parse(text, source), source, folder)
 
     @classmethod
     def load(cls, path: str | Path) -> Properties:

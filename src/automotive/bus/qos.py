@@ -8,8 +8,8 @@ from pathlib import Path
 from cyclonedds.qos import DataReaderQos, DataWriterQos, Policy
 from cyclonedds.qos_provider import QosProvider
 
-from automotive.errors import ConfigError
-from automotive.properties import Properties
+from automotive.bus.errors import ConfigError
+from automotive.bus.properties import Properties
 
 # RTI Connext 6 readers accept XCDR1 by default, not Cyclone's XCDR2 default for appendable types; our writers
 # therefore write XCDR1 and our readers accept both.

@@ -8,6 +8,8 @@ from typing import Any
 
 from cyclonedds.core import Listener
 
+from automotive.bus.stats import Stats
+
 # DDS QoS policy ids, as in the DDS specification and Cyclone's dds_public_qosdefs.h.
 QOS_POLICY_NAMES = {
     1: "USER_DATA", 2: "DURABILITY", 3: "PRESENTATION", 4: "DEADLINE", 5: "LATENCY_BUDGET", 6: "OWNERSHIP",
@@ -30,12 +32,14 @@ def policy_name(policy_id: int) -> str:
 class StatusListener(Listener):
     """Logs matched/unmatched, deadline missed, liveliness, incompatible QoS, sample lost and rejected events."""
 
-    def __init__(self, topic_name: str, log: logging.Logger, hook: EventHook | None = None, exclusive: bool = False):
+    def __init__(self, topic_name: str, log: logging.Logger, hook: EventHook | None = None, exclusive: bool = False,
+                 stats: Stats | None = None):
         super().__init__()
+        self.stats = stats
         self.topic_name = topic_name
         # Cyclone counts every sample an EXCLUSIVE reader drops because a stronger writer owns the instance as
         # "sample lost": with a hot standby that is each of its samples, by design. Such readers report owner
-        # changes instead (automotive.ownership).
+        # changes instead (automotive.bus.ownership).
         self.exclusive = exclusive
         self.log = log
         self.hook = hook
@@ -45,13 +49,20 @@ class StatusListener(Listener):
         if self.hook is not None:
             self.hook(event, self.topic_name, status)
 
+    def _matched(self, endpoint: str, status: Any) -> None:
+        if self.stats is not None:
+            self.stats.record("matched", topic=self.topic_name, endpoint=endpoint, count=status.current_count,
+                              change=status.current_count_change)
+
     def on_publication_matched(self, writer: Any, status: Any) -> None:
         verb = "matched" if status.current_count_change > 0 else "unmatched"
+        self._matched("writer", status)
         self._report("publication_matched", status,
                      f"writer {verb} a reader: {status.current_count} reader(s) now")
 
     def on_subscription_matched(self, reader: Any, status: Any) -> None:
         verb = "matched" if status.current_count_change > 0 else "unmatched"
+        self._matched("reader", status)
         self._report("subscription_matched", status,
                      f"reader {verb} a writer: {status.current_count} writer(s) now")
 
@@ -75,6 +86,9 @@ class StatusListener(Listener):
             message, level = "liveliness regained: a writer is alive", logging.INFO
         else:
             message, level = "liveliness changed", logging.INFO
+        if self.stats is not None:
+            self.stats.record("liveliness", topic=self.topic_name, alive=status.alive_count,
+                              not_alive=status.not_alive_count, lost=status.not_alive_count_change > 0)
         self._report("liveliness_changed", status,
                      f"{message} ({status.alive_count} alive, {status.not_alive_count} not alive)", level)
 

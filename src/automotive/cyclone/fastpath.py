@@ -20,9 +20,10 @@ Being subclasses, the new machines keep what Cyclone asks of the old ones elsewh
 mutable types, key scanning, key machine ops). Cyclone wraps errors raised inside a struct in a bare ``Exception``
 whose message prints the whole value; while enabled, ``IDL.serialize`` re-raises our own error instead.
 
-Call :func:`enable` before the first sample is written or read (``automotive.app`` does it at import). It also
-converts types whose machines were already built, so the order is not critical, but a type whose machines are
-being built by another thread at that very moment may stay on the slow path: enable early, before any DDS entity.
+Call :func:`enable` before the first sample is written or read (``automotive.cyclone.start`` does it once, when a
+program starts). It also converts types whose machines were already built, so the order is not critical, but a type
+whose machines are being built by another thread at that very moment may stay on the slow path: enable early, before
+any DDS entity.
 """
 
 from __future__ import annotations
@@ -53,8 +54,8 @@ from cyclonedds.idl._support import Buffer, DeserializeKind, SerializeKind
 from cyclonedds.idl._type_normalize import get_extended_type_hints
 from cyclonedds.idl.types import uint8
 
-from automotive import bounds
-from automotive.bounds import BoundError
+from automotive.cyclone import bounds
+from automotive.cyclone.bounds import BoundError
 
 __all__ = [
     "FastPathCounts",
@@ -317,7 +318,7 @@ def _serialize(self: IDL, *args: Any, **kwargs: Any) -> bytes:
 def enable() -> None:
     """Switch octet sequences and arrays of every IDL type, built or still to build, to the fast path. Idempotent.
 
-    Also enforces every bound listed in ``automotive.bounds.EXTRA_BOUNDS`` (PointCloud2_.data_).
+    Also enforces every bound listed in ``automotive.cyclone.bounds.EXTRA_BOUNDS`` (PointCloud2_.data_).
     """
     global _enabled
     with _lock:

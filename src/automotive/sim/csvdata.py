@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TypeVar
 
-from automotive.errors import ConfigError
+from automotive.bus.errors import ConfigError
 from automotive.types.Common import ClassificationEnum
 from automotive.types.Vision import VISION_OBJECT_LIST_MAX_SIZE, VisionObject
 

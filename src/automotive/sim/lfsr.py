@@ -86,6 +86,10 @@ class FramePattern:
         self.stream = stream_bytes(size + OFFSET_PERIOD, seed)
         self._view = memoryview(self.stream)
 
+    def offset(self, seqnum: int) -> int:
+        """Where in :attr:`stream` the frame with this sequence number starts."""
+        return frame_offset(seqnum)
+
     def frame(self, seqnum: int) -> memoryview:
         """The frame's bytes, without a copy."""
         offset = frame_offset(seqnum)

@@ -1,8 +1,8 @@
 """Live view: a Foxglove WebSocket server that forwards every flow of the databus, as received, to the Foxglove app.
 
-Data flow:  every topic of the system (automotive.flows; --topics to choose), each read with the reader side of its
-writer's QoS profile keeping only the newest sample  -->  serialized samples, never deserialized
-(automotive.rawsample)  -->  one Foxglove channel per topic (message encoding ``cdr``, the recorder's schemas)  -->
+Data flow:  every topic of the system (automotive.tools.flows; --topics to choose), each read with the reader side of
+its writer's QoS profile keeping only the newest sample  -->  serialized samples, never deserialized
+(automotive.wire.rawsample)  -->  one Foxglove channel per topic (message encoding ``cdr``, the recorder's schemas)  -->
 the Foxglove WebSocket server (foxglove-sdk) on ws://HOST:PORT
 
 Open it in Foxglove with "Open connection" > "Foxglove WebSocket" > ws://127.0.0.1:8765. The LiDAR cloud shows in
@@ -22,10 +22,10 @@ import foxglove
 from cyclonedds.qos import Policy
 from foxglove.websocket import ChannelView, Client, ServerListener
 
-from automotive.app import Application, run
-from automotive.errors import ConfigError
-from automotive.flows import Flow, channel_metadata, select, system_flows
-from automotive.rawsample import RawReader, SampleKind
+from automotive.bus.app import Application, run
+from automotive.bus.errors import ConfigError
+from automotive.tools.flows import Flow, channel_metadata, select, system_flows
+from automotive.wire.rawsample import RawReader, SampleKind
 
 TAKE_LIMIT = 16
 
@@ -55,7 +55,7 @@ def foxglove_channel(app: Application, flow: Flow) -> foxglove.Channel:
 
 
 def body(app: Application) -> None:
-    flows = select(system_flows(), app.args.topics)
+    flows = select(system_flows(app.props.folder), app.args.topics)
     backlog = app.props.get_int("config.backlog", 16, minimum=1)
     port: int = app.args.port
     if not 0 <= port <= 65535:

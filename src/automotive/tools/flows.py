@@ -1,11 +1,12 @@
 """The data flows of the system as the recorder, the replayer and the live bridge see them.
 
-Each flow is written by one application; that application's shipped properties file names the flow's topic and QoS
+Each flow is written by one application; that application's properties file names the flow's topic and QoS
 profile (``topic.<Role>``, ``qos.<Role>.Profile``), so a profile changed there is the one recorded and replayed
-with. A flow's MCAP/Foxglove schema is what Foxglove, ``rosbags`` and rosbag2 decode CDR with: the LiDAR as the ROS 2
-message ``sensor_msgs/msg/PointCloud2`` (``ros2msg``), every other type as OMG IDL (``omgidl``: the project's IDL
-text and the type's scoped name). Channel metadata carries the writer's QoS as rosbag2 writes it
-(``offered_qos_profiles``) and the DDS topic and type names.
+with: the file beside the tool's own properties file (an exported copy of the configuration), else the shipped one. A
+flow's MCAP/Foxglove schema is what Foxglove, ``rosbags`` and rosbag2 decode CDR with: the LiDAR as the ROS 2 message
+``sensor_msgs/msg/PointCloud2`` (``ros2msg``), every other type as OMG IDL (``omgidl``: the project's IDL text and the
+type's scoped name). Channel metadata carries the writer's QoS as rosbag2 writes it (``offered_qos_profiles``) and the
+DDS topic and type names.
 """
 
 from __future__ import annotations
@@ -17,20 +18,18 @@ from typing import Any
 
 from cyclonedds.qos import DataWriterQos
 
-from automotive.camera import frame_type
-from automotive.errors import ConfigError
-from automotive.properties import Properties
-from automotive.qos import profile_name
+from automotive import config
+from automotive.bus.errors import ConfigError
+from automotive.bus.properties import Properties
+from automotive.bus.qos import profile_name
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.automotive import ShapeType
 from automotive.types.Platform import PlatformControl, PlatformStatus
 from automotive.types.Sensor import SensorObjectList
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.types.Vision import VisionSensor
+from automotive.wire.camera import frame_type
 
-PROJECT_ROOT = Path(__file__).resolve().parent.parent
-IDL_FILE = PROJECT_ROOT / "idl" / "automotive.idl"
-PROPERTIES_DIR = PROJECT_ROOT / "properties"
 ROS2_POINTCLOUD = "sensor_msgs/msg/PointCloud2"
 
 
@@ -92,14 +91,18 @@ def schema_of(data_type: type[Any]) -> Schema:
 
         definition, _ = get_typestore(Stores.ROS2_HUMBLE).generate_msgdef(ROS2_POINTCLOUD, ros_version=2)
         return Schema(ROS2_POINTCLOUD, "ros2msg", definition.encode())
-    return Schema(type_name(data_type), "omgidl", IDL_FILE.read_bytes())
+    return Schema(type_name(data_type), "omgidl", config.idl_file().read_bytes())
 
 
-def system_flows(properties_dir: Path = PROPERTIES_DIR) -> list[Flow]:
-    """Every flow of the system, with the topic names and profiles of the applications' properties files."""
+def system_flows(properties_dir: Path | None = None) -> list[Flow]:
+    """Every flow of the system, with the topic names and profiles of the writing applications' properties files:
+    those in ``properties_dir`` (the folder of the tool's own properties file), each missing one the shipped one."""
     flows = []
     for source in SOURCES:
-        props = Properties.load(properties_dir / f"{source.app}.properties")
+        path = (properties_dir or config.properties_dir()) / f"{source.app}.properties"
+        if not path.is_file():
+            path = config.properties_file(source.app)
+        props = Properties.load(path)
         topic = props.get_str(f"topic.{source.role}", source.default_topic)
         profile = profile_name(props, source.role)
         data_type = source.data_type or frame_type(props.get_str("config.imageSize", "full"),

@@ -1,36 +1,39 @@
-#!/usr/bin/env python3
 """Start the automotive applications together, watch them, and stop them together.
 
-    scripts/launch                                   all applications, single host (loopback)
-    scripts/launch vision sensor_fusion              a subset, by name
-    scripts/launch --except camera_pub,camera_sub    all but these
-    scripts/launch --vision-sensors 3                three vision sensors, config.sensorId 1, 2, 3
-    scripts/launch --redundant                       hot standbys: two sensor_fusion, two collision_avoidance
-    scripts/launch --peers 10.0.0.1,10.0.0.2 --interface eth0 vision sensor_fusion
-    scripts/launch -D collision_avoidance:config.alertSize=1.0 -D config.domainId=7
-    scripts/launch stop                              stop the running launcher (from another terminal)
-    scripts/launch status                            what the running launcher runs
-    scripts/launch --list                            the applications this version has
+    automotive-launch                                   all applications, single host (loopback)
+    automotive-launch vision sensor_fusion              a subset, by name
+    automotive-launch --except camera_pub,camera_sub    all but these
+    automotive-launch --vision-sensors 3                three vision sensors, config.sensorId 1, 2, 3
+    automotive-launch --redundant                       hot standbys: two sensor_fusion, two collision_avoidance
+    automotive-launch --peers 10.0.0.1,10.0.0.2 --interface eth0 vision sensor_fusion
+    automotive-launch -D collision_avoidance:config.alertSize=1.0 -D config.domainId=7
+    automotive-launch stop                              stop the running launcher (from another terminal)
+    automotive-launch status                            what the running launcher runs
+    automotive-launch --list                            the applications this version has
+
+(``scripts/launch`` in a clone of the repository: the same, after installing what is needed.)
 
 Modes (--mode): `window` opens one terminal window per application (a graphical terminal emulator exists and DISPLAY
 is set); `tmux` opens a tmux session with the launcher in window 0 and one window per application; `background`
 multiplexes every application's output into this terminal, each line prefixed with the application's name (in its
-own colour on a terminal). Every mode also writes one log file per application (logs/<name>.log). Without --mode: window
+own colour on a terminal). Every mode also writes one log file per application (logs/<name>.log in the current
+directory, or --log-dir). Without --mode: window
 if possible, else tmux in a terminal, else background; with no terminal (a pipe, CI) always background.
 
 The launcher owns the application processes in every mode (the windows only show their log files), so stopping works
-the same everywhere: Ctrl-C, SIGTERM or `scripts/launch stop` sends SIGTERM to each application, waits --stop-timeout
+the same everywhere: Ctrl-C, SIGTERM or `automotive-launch stop` sends SIGTERM to each application, waits --stop-timeout
 seconds, sends SIGKILL to any left, and prints how each one ended. An application that ends on its own is reported at
 once with its exit code; the others go on. A second Ctrl-C kills at once.
 
-On a fresh machine the launcher runs scripts/setup and restarts itself with .venv/bin/python (--no-setup: use the
-running Python as it is).
+Each application is started as ``python -m automotive.apps.<name>`` with the launcher's own interpreter, so it runs
+the same installation.
 """
 
 from __future__ import annotations
 
 import argparse
 import ctypes
+import importlib.util
 import json
 import os
 import re
@@ -47,14 +50,22 @@ from pathlib import Path
 from types import FrameType
 from typing import IO
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from automotive.cli import EXIT_BAD_INPUT, ArgumentParser, run_in_project_venv  # noqa: E402
+from automotive import config
+from automotive.bus.cli import (
+    EXIT_BAD_INPUT,
+    ArgumentParser,
+    add_domain_option,
+    add_log_dir_option,
+    add_network_options,
+    add_override_option,
+)
+from automotive.tools import children
+from automotive.tools.children import Child, Line
 
 # Every application of the system, in the order they are listed and started.
-APPS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "camera_pub",
-        "camera_sub")
+APPS = children.APPS
+PROG = "automotive-launch"
+DEFAULT_LOG_DIR = Path("logs")
 MODES = ("auto", "window", "tmux", "background")
 # Redundant mode (--redundant): these run twice, as <name> (the primary) and <name>-2 (the standby), with exclusive
 # ownership; readers follow the stronger live instance.
@@ -79,19 +90,20 @@ class LaunchError(Exception):
 @dataclass
 class AppSpec:
     name: str  # unique label: the module name, or vision-1, vision-2 ... with several vision sensors
-    module: str  # apps.<module>
+    module: str  # automotive.apps.<module>
     args: list[str]
 
     @property
     def command(self) -> list[str]:
-        return [sys.executable, "-m", f"apps.{self.module}", *self.args]
+        return children.program_command(self.module, *self.args)
 
 
 def missing_reason(module: str) -> str | None:
     """Why an application of the list cannot start in this version of the project, or None if it can."""
-    for path in (ROOT / "apps" / f"{module}.py", ROOT / "properties" / f"{module}.properties"):
-        if not path.is_file():
-            return f"{path.relative_to(ROOT)} is missing"
+    if importlib.util.find_spec(children.program_module(module)) is None:
+        return f"module {children.program_module(module)} is missing"
+    if not config.properties_file(module).is_file():
+        return f"the shipped properties/{module}.properties is missing"
     return None
 
 
@@ -224,16 +236,15 @@ def set_parent_death_signal() -> None:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     except (OSError, AttributeError):
-        pass  # not Linux: `scripts/launch stop` still finds the applications through the pid file
+        pass  # not Linux: `automotive-launch stop` still finds the applications through the pid file
 
 
 @dataclass
 class RunningApp:
     spec: AppSpec
     log_path: Path
-    process: subprocess.Popen[bytes]
+    child: Child
     started: float = field(default_factory=time.monotonic)
-    readers: list[threading.Thread] = field(default_factory=list)
     log: IO[str] | None = None
     log_lock: threading.Lock = field(default_factory=threading.Lock)
     last_error: str = ""  # its last line on stderr: usually why it ended
@@ -246,6 +257,10 @@ class RunningApp:
     @property
     def name(self) -> str:
         return self.spec.name
+
+    @property
+    def process(self) -> subprocess.Popen[bytes]:
+        return self.child.process
 
 
 # -- views: windows or tmux windows that show the log files ---------------------------------------------------------
@@ -338,21 +353,9 @@ class TmuxViews(Views):
             subprocess.run(["tmux", "kill-window", "-t", window_id], capture_output=True)
 
 
-# -- the pid file: how `scripts/launch stop` finds the launcher and its applications ---------------------------------
-def pid_cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-    except OSError:
-        return ""
-
-
-def pid_alive(pid: int) -> bool:
-    """True if the process exists and is not a zombie (a zombie has ended; only its exit status is left)."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat.rpartition(")")[2].split()[0] != "Z"
+# -- the pid file: how `automotive-launch stop` finds the launcher and its applications ------------------------------
+pid_cmdline = children.command_line
+pid_alive = children.alive
 
 
 def read_pid_file(log_dir: Path) -> dict[str, object] | None:
@@ -408,8 +411,6 @@ class Supervisor:
 
     def start_all(self) -> None:
         env = dict(os.environ)
-        env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        env["PYTHONUNBUFFERED"] = "1"
         # All processes are started before any reader thread exists: the child set-up (parent-death signal) runs
         # between fork and exec, which is only safe while this process has a single thread.
         for spec in self.specs:
@@ -418,36 +419,31 @@ class Supervisor:
             log_path = self.log_dir / f"{spec.name}.log"
             log_path.write_text(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} {shlex.join(spec.command)}\n")
             try:
-                process = subprocess.Popen(spec.command, cwd=ROOT, env=env, stdin=subprocess.DEVNULL,
-                                           stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                           start_new_session=True,  # Ctrl-C reaches the launcher only
-                                           preexec_fn=set_parent_death_signal)
+                child = Child(spec.name, spec.command, env=env, separate_stderr=True,
+                              new_session=True,  # Ctrl-C reaches the launcher only
+                              preexec_fn=set_parent_death_signal, read=False, on_line=self._on_line,
+                              on_end=lambda child, stream: self.wake.set())  # ending: look at it now
             except OSError as error:
                 self.console.say(f"cannot start {spec.name}: {error}")
                 continue
-            self.apps.append(RunningApp(spec, log_path, process))
-            self.console.say(f"started {spec.name} (pid {process.pid}): python -m apps.{spec.module} "
+            self.apps.append(RunningApp(spec, log_path, child))
+            self.console.say(f"started {spec.name} (pid {child.pid}): python -m {children.program_module(spec.module)} "
                              f"{shlex.join(spec.args)}".rstrip())
         self.write_pid_file()
         for app in self.apps:
             app.log = open(app.log_path, "a", encoding="utf-8")
-            for stream in (app.process.stdout, app.process.stderr):
-                reader = threading.Thread(target=self._read_output, args=(app, stream), daemon=True)
-                app.readers.append(reader)
-                reader.start()
+            app.child.start_reading()
             self.views.open(app)
 
-    def _read_output(self, app: RunningApp, stream: IO[bytes] | None) -> None:
-        assert stream is not None and app.log is not None
-        for raw in iter(stream.readline, b""):
-            line = raw.decode("utf-8", errors="replace").rstrip("\r\n")
-            with app.log_lock:
-                app.log.write(line + "\n")
-                app.log.flush()
-            if stream is app.process.stderr:
-                app.last_error = line
-            self.console.app_line(app.name, line)
-        self.wake.set()  # the output ended: the process is ending, look at it now
+    def _on_line(self, child: Child, line: Line) -> None:
+        app = next(app for app in self.apps if app.child is child)
+        assert app.log is not None
+        with app.log_lock:
+            app.log.write(line.text + "\n")
+            app.log.flush()
+        if line.stream == children.STDERR:
+            app.last_error = line.text
+        self.console.app_line(app.name, line.text)
 
     def running(self) -> list[RunningApp]:
         return [app for app in self.apps if app.code is None]
@@ -456,8 +452,7 @@ class Supervisor:
         """Record how an application ended, report it, and append it to its log file."""
         app.code = code
         app.ended = time.monotonic()
-        for reader in app.readers:
-            reader.join(timeout=2)  # its last lines first
+        app.child.join_output(timeout=2)  # its last lines first
         seconds = app.ended - app.started
         if app.killed:
             app.how = f"did not stop within {self.stop_timeout:g} s after SIGTERM: {describe_code(code)}"
@@ -491,13 +486,7 @@ class Supervisor:
             self.console.say("every application has ended")
 
     def _signal(self, app: RunningApp, sig: signal.Signals) -> None:
-        try:
-            os.killpg(app.process.pid, sig)  # its process group: an application's own children too
-        except (ProcessLookupError, PermissionError):
-            try:
-                app.process.send_signal(sig)
-            except ProcessLookupError:
-                pass
+        app.child.send_signal(sig, group=True)  # its process group: an application's own children too
 
     def stop_all(self) -> None:
         self.poll()
@@ -545,7 +534,7 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
     info = read_pid_file(log_dir)
     if info is not None and launcher_running(info) is not None:
         raise LaunchError(f"a launcher (pid {info['launcher']}) already runs with its logs in {log_dir}: "
-                          "stop it with `scripts/launch stop`, or use another --log-dir")
+                          f"stop it with `{PROG} stop`, or use another --log-dir")
     (log_dir / SUMMARY_FILE).unlink(missing_ok=True)
     names = [spec.name for spec in specs]
     console = Console(names, show_apps=mode != "window", launcher_log=log_dir / "launch.log")
@@ -567,7 +556,7 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
         supervisor.start_all()
         if supervisor.apps:
             console.say(f"{len(supervisor.apps)} application(s) running ({mode} mode), logs in {log_dir}; "
-                        "Ctrl-C or `scripts/launch stop` stops them")
+                        f"Ctrl-C or `{PROG} stop` stops them")
             supervisor.watch()
     finally:
         supervisor.stop_all()
@@ -617,31 +606,31 @@ def run_in_tmux(args: argparse.Namespace, argv: list[str]) -> int:
     session = tmux_session_name(args)
     if subprocess.run(["tmux", "has-session", "-t", f"={session}"], capture_output=True).returncode == 0:
         raise LaunchError(f"tmux session '{session}' already exists: `tmux attach -t {session}` to see it, "
-                          "`scripts/launch stop` to stop it")
-    inner = [sys.executable, str(Path(__file__).resolve()), *argv, "--mode", "background", "--no-setup",
+                          f"`{PROG} stop` to stop it")
+    inner = [sys.executable, "-m", "automotive.tools.launch", "--prog", PROG, *argv, "--mode", "background",
              "--log-dir", str(args.log_dir), "--tmux-session", session]
     # A running tmux server starts new sessions with its own environment: hand over what the applications need.
     passed = {key: os.environ[key] for key in ("CYCLONEDDS_URI", "DISPLAY", "WAYLAND_DISPLAY", "XAUTHORITY",
                                                "PYTHONPATH", "PATH", "NO_COLOR") if key in os.environ}
     # The session ends with the launcher; its summary stays in logs/launch-summary.txt (printed by us or by stop).
     shell = shlex.join(["env", *(f"{key}={value}" for key, value in passed.items()), *inner])
-    result = subprocess.run(["tmux", "new-session", "-d", "-s", session, "-n", LAUNCHER_LABEL, "-c", str(ROOT),
+    result = subprocess.run(["tmux", "new-session", "-d", "-s", session, "-n", LAUNCHER_LABEL, "-c", os.getcwd(),
                              "-x", "200", "-y", "50", shell], capture_output=True, text=True)
     if result.returncode != 0:
         raise LaunchError(f"tmux could not start session '{session}': {result.stderr.strip()}")
     log_dir: Path = args.log_dir
     if os.environ.get("TMUX"):
         subprocess.run(["tmux", "switch-client", "-t", session])
-        print(f"launch: switched to tmux session '{session}'; `scripts/launch stop` stops it")
+        print(f"launch: switched to tmux session '{session}'; `{PROG} stop` stops it")
         return 0
     if not interactive():
         print(f"launch: running in tmux session '{session}': `tmux attach -t {session}` to watch, "
-              "`scripts/launch stop` to stop")
+              f"`{PROG} stop` to stop")
         return 0
     subprocess.run(["tmux", "attach-session", "-t", session])
     if subprocess.run(["tmux", "has-session", "-t", f"={session}"], capture_output=True).returncode == 0:
         print(f"launch: detached; the system runs on in tmux session '{session}': `tmux attach -t {session}` to "
-              "watch, `scripts/launch stop` to stop")
+              f"watch, `{PROG} stop` to stop")
         return 0
     summary = log_dir / SUMMARY_FILE
     if summary.is_file():
@@ -657,12 +646,12 @@ def app_pids(info: dict[str, object]) -> dict[str, int]:
         return {}
     # Only processes that still are these applications (a pid may have been reused since).
     return {name: pid for name, pid in apps.items() if isinstance(pid, int) and pid_alive(pid)
-            and f"apps.{modules.get(name)}" in pid_cmdline(pid)}
+            and children.program_module(str(modules.get(name))) in pid_cmdline(pid)}
 
 
 def stop_command(argv: list[str]) -> int:
-    parser = ArgumentParser(prog="scripts/launch stop", description="Stop the running launcher.")
-    parser.add_argument("--log-dir", type=Path, default=ROOT / "logs", help="the launcher's --log-dir")
+    parser = ArgumentParser(prog=f"{PROG} stop", description="Stop the running launcher.")
+    add_log_dir_option(parser, DEFAULT_LOG_DIR, "the launcher's --log-dir")
     parser.add_argument("--timeout", type=float, default=None,
                         help="how long to wait for the launcher (default: its stop timeout + 10 s)")
     args = parser.parse_args(argv)
@@ -703,8 +692,8 @@ def stop_command(argv: list[str]) -> int:
 
 
 def status_command(argv: list[str]) -> int:
-    parser = ArgumentParser(prog="scripts/launch status", description="What the running launcher runs.")
-    parser.add_argument("--log-dir", type=Path, default=ROOT / "logs", help="the launcher's --log-dir")
+    parser = ArgumentParser(prog=f"{PROG} status", description="What the running launcher runs.")
+    add_log_dir_option(parser, DEFAULT_LOG_DIR, "the launcher's --log-dir")
     args = parser.parse_args(argv)
     info = read_pid_file(args.log_dir)
     launcher = launcher_running(info) if info is not None else None
@@ -729,9 +718,9 @@ def list_command() -> int:
 # -- entry ----------------------------------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
-        prog="scripts/launch", formatter_class=argparse.RawDescriptionHelpFormatter,
+        prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Start the automotive applications together and stop them together "
-                    "(`scripts/launch stop` stops a running launcher, `scripts/launch status` shows it).",
+                    f"(`{PROG} stop` stops a running launcher, `{PROG} status` shows it).",
         epilog=f"applications: {', '.join(APPS)}")
     parser.add_argument("names", nargs="*", metavar="APP", help="applications to start (default: all)")
     parser.add_argument("--except", dest="exclude", action="append", default=[], metavar="A,B",
@@ -744,25 +733,37 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mode", choices=MODES, default="auto",
                         help="window, tmux or background (default auto: window if a display and a terminal "
                              "emulator exist, tmux in a terminal, background otherwise)")
-    parser.add_argument("--domain", type=int, default=None, help="DDS domain id for every application")
-    parser.add_argument("--network", choices=["loopback", "lan", "peers"], default=None,
-                        help="for every application: loopback (default), lan (multicast) or peers (unicast)")
-    parser.add_argument("--interface", default=None, help="network interface for every application")
-    parser.add_argument("--peers", default=None, metavar="H1,H2", help="unicast peers for every application")
-    parser.add_argument("-D", dest="overrides", action="append", default=[], metavar="[APP:]KEY=VALUE",
-                        help="property override for every application, or for APP only (repeatable)")
-    parser.add_argument("--log-dir", type=Path, default=ROOT / "logs",
-                        help="log files, pid file and summary (default: logs/)")
+    add_domain_option(parser, help="DDS domain id for every application")
+    add_network_options(parser, for_every="for every application: ")
+    add_override_option(parser, "[APP:]KEY=VALUE",
+                        "property override for every application, or for APP only (repeatable)")
+    add_log_dir_option(parser, DEFAULT_LOG_DIR, "log files, pid file and summary (default: logs/ in the current "
+                                                "directory)")
     parser.add_argument("--stop-timeout", type=float, default=DEFAULT_STOP_TIMEOUT, metavar="S",
                         help=f"seconds between SIGTERM and SIGKILL when stopping (default {DEFAULT_STOP_TIMEOUT:g})")
     parser.add_argument("--no-setup", action="store_true",
-                        help="use the running Python as it is (no scripts/setup, no restart in .venv)")
+                        help="scripts/launch: do not run scripts/setup first (the launcher itself ignores it)")
     parser.add_argument("--list", action="store_true", help="list the applications and whether this version has them")
     parser.add_argument("--tmux-session", default=None, help=argparse.SUPPRESS)  # window 0 of a tmux session
+    parser.add_argument("--prog", default=None, help=argparse.SUPPRESS)  # the name the launcher was started by
     return parser
 
 
-def main(argv: list[str]) -> int:
+def main(argv: list[str] | None = None, prog: str | None = None) -> int:
+    """The launcher; ``prog`` is the name it says it was started by (scripts/launch passes its own)."""
+    global PROG
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["--prog"] and len(argv) > 1:  # the tmux session's inner launcher
+        prog, argv = argv[1], argv[2:]
+    PROG = prog or PROG
+    try:
+        return _main(argv)
+    except LaunchError as error:
+        print(f"launch: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+def _main(argv: list[str]) -> int:
     if argv[:1] == ["stop"]:
         return stop_command(argv[1:])
     if argv[:1] == ["status"]:
@@ -776,16 +777,10 @@ def main(argv: list[str]) -> int:
         raise LaunchError(f"nothing to start ({reasons})" if reasons else "nothing to start")
     mode = choose_mode(args.mode)
     args.log_dir = args.log_dir.resolve()
-    if not args.no_setup:
-        run_in_project_venv(__file__, argv)
     if mode == "tmux" and not args.tmux_session:
         return run_in_tmux(args, argv)
     return run_supervisor(args, specs, missing, mode)
 
 
 if __name__ == "__main__":
-    try:
-        sys.exit(main(sys.argv[1:]))
-    except LaunchError as error:
-        print(f"launch: {error}", file=sys.stderr)
-        sys.exit(EXIT_BAD_INPUT)
+    sys.exit(main())

@@ -1,7 +1,8 @@
 """Point-cloud viewer: subscribes rt/LidarTopic and shows each cloud as a perspective view and a top view.
 
-    python -m apps.lidar_view --snapshot cloud.png [--count N] [--timeout S]   # a PNG of the Nth cloud, then exit
-    python -m apps.lidar_view [--ui window]                                     # a live window (needs a display)
+    python -m automotive.tools.lidar_view --snapshot cloud.png [--count N] [--timeout S]   # a PNG of the Nth cloud,
+    then exit python -m automotive.tools.lidar_view [--ui window]                                     # a live window
+    (needs a display)
 
 Data flow:  sensor_msgs::msg::dds_::PointCloud2_ on rt/LidarTopic  -->  PNG file or window
 
@@ -23,11 +24,11 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from automotive.app import Application, run
-from automotive.cloudview import render_image, render_png
-from automotive.errors import ConfigError
-from automotive.pointcloud import decode_point_cloud2
+from automotive.bus.app import Application, run
+from automotive.bus.errors import ConfigError
+from automotive.tools.cloudview import render_image, render_png
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
+from automotive.wire.pointcloud import decode_point_cloud2
 
 WINDOW_TITLE = "LiDAR point cloud"
 

@@ -1,5 +1,4 @@
-#!/usr/bin/env python3
-"""Write the pre-canned data of the vision sensor and the vehicle platform: properties/data/{vision,platform}.csv.
+"""Write the pre-canned data of the vision sensor and the vehicle platform: OUT/{vision,platform}.csv.
 
 The scene: 100 s (1000 samples at 10 Hz) of the ego car on a two-lane town road, on a gently winding route. The ego
 follows a car in its lane at 45 km/h or so, meets oncoming traffic, overtakes cyclists in the bike lane, passes parked
@@ -13,7 +12,8 @@ position is relative to the camera (position[2]: height of the object's centre a
 relative to the ego, and its size is the box it occupies along x, y, z of that frame (size[1]: how wide it looks).
 
 The files follow the original example's CSV formats (same header style and columns); the output is a function of
---seed alone.
+--seed alone. The shipped files (automotive/config/properties/data) were made with the defaults:
+``automotive-make-scene-data --out src/automotive/config/properties/data`` in a clone of the repository.
 """
 
 from __future__ import annotations
@@ -28,12 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
-
-from automotive.cli import ArgumentParser, run_in_project_venv  # noqa: E402
-
-run_in_project_venv(__file__, sys.argv[1:])  # numpy and Cyclone are in the project's .venv
+from automotive.bus.cli import ArgumentParser
 
 DT = 0.1  # s between samples (the applications' default publication period)
 START = calendar.timegm((2024, 5, 14, 9, 30, 0))  # 2024-05-14 09:30:00 UTC
@@ -281,13 +276,12 @@ def write_platform(scene: Scene, path: Path) -> None:
             writer.writerow(timestamps(k) + [number(velocity), number(yaw_rate, 6), number(speed, 3), number(pedal)])
 
 
-def main() -> int:
-    root = Path(__file__).resolve().parent.parent
-    parser = ArgumentParser(description=__doc__.splitlines()[0])
+def main(argv: list[str] | None = None) -> int:
+    parser = ArgumentParser(prog="automotive-make-scene-data", description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seed", type=int, default=20240514, help="random seed (default: %(default)s)")
     parser.add_argument("--rows", type=int, default=1000, help="samples per file, 10 per second (default: %(default)s)")
-    parser.add_argument("--out", type=Path, default=root / "properties" / "data", help="output folder")
-    args = parser.parse_args()
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    args = parser.parse_args(argv)
     if args.rows < 100:
         parser.error(f"--rows {args.rows}: expected at least 100")
     args.out.mkdir(parents=True, exist_ok=True)

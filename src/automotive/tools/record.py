@@ -1,8 +1,8 @@
 """Recorder: every flow of the running system, as received, into an MCAP file (the format of rosbag2 and Foxglove).
 
-Data flow:  every topic of the system (automotive.flows; --topics to choose), each read with the reader side of its
-writer's QoS profile and a history that keeps every sample  -->  serialized samples, never deserialized
-(automotive.rawsample)  -->  a bounded queue  -->  the writer thread: MCAP chunks (compressed with
+Data flow:  every topic of the system (automotive.tools.flows; --topics to choose), each read with the reader side of
+its writer's QoS profile and a history that keeps every sample  -->  serialized samples, never deserialized
+(automotive.wire.rawsample)  -->  a bounded queue  -->  the writer thread: MCAP chunks (compressed with
 config.compression=lz4|zstd; none by default), on disk every second  -->  --output FILE
 
 The file: MCAP profile ``ros2``, one channel per topic, message encoding ``cdr``: the bytes exactly as received
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import dataclasses
 import os
 import sys
 import threading
@@ -28,10 +29,10 @@ from typing import Any, BinaryIO
 from cyclonedds.qos import DataWriterQos, Policy
 from mcap.writer import CompressionType, Writer
 
-from automotive.app import Application, run
-from automotive.errors import ConfigError
-from automotive.flows import Flow, channel_metadata, select, system_flows
-from automotive.rawsample import RawReader, RawSample, SampleKind
+from automotive.bus.app import Application, run
+from automotive.bus.errors import ConfigError
+from automotive.tools.flows import Flow, channel_metadata, select, system_flows
+from automotive.wire.rawsample import RawReader, RawSample, SampleKind
 
 TAKE_LIMIT = 64  # samples per take
 FLUSH_INTERVAL_S = 1.0  # finish the open chunk and hand it to the OS at least this often: what a SIGKILL can cost
@@ -64,7 +65,7 @@ class Recording:
         self._closing = False
         self.on_disk = 0  # messages handed to the OS
         self.writer = Writer(stream, chunk_size=chunk_size, compression=COMPRESSIONS[compression])
-        self.writer.start(profile="ros2", library="automotive-databus apps.record")
+        self.writer.start(profile="ros2", library="automotive-databus automotive.tools.record")
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, SampleKind], int] = {}
         self._sequence: dict[int, int] = {}
@@ -153,6 +154,13 @@ class Recording:
         return (f"recorded={total} on_disk={self.on_disk} MB={size / 1e6:.2f} file_MB={self.file_size() / 1e6:.2f} "
                 f"lost={lost} queue_MB={self.queued_bytes / 1e6:.1f}")
 
+    def figures(self) -> dict[str, Any]:
+        """The counts as numbers: totals and, per topic, messages, changes, bytes, lost and dds_lost."""
+        return {"recorded": sum(c.messages + c.changes for c in self.counts.values()), "on_disk": self.on_disk,
+                "bytes": sum(c.bytes for c in self.counts.values()),
+                "lost": sum(c.lost + c.dds_lost for c in self.counts.values()), "queued_bytes": self.queued_bytes,
+                "topics": {topic: dataclasses.asdict(c) for topic, c in self.counts.items()}}
+
     def status(self) -> str:
         """The totals and, for each topic that has seen anything, its messages and megabytes."""
         topics = " ".join(f"{topic}={c.messages}/{c.bytes / 1e6:.2f}MB" for topic, c in self.counts.items()
@@ -170,7 +178,7 @@ def open_output(path: Path, overwrite: bool) -> BinaryIO:
 
 
 def body(app: Application) -> None:
-    flows = select(system_flows(), app.args.topics)
+    flows = select(system_flows(app.props.folder), app.args.topics)
     if app.args.duration is not None and app.args.duration <= 0:
         raise ConfigError(f"--duration {app.args.duration:g}: expected a number of seconds above 0")
     compression = app.props.get_choice("config.compression", list(COMPRESSIONS), "none")
@@ -208,6 +216,7 @@ def body(app: Application) -> None:
             now = time.monotonic()
             if now >= next_status:
                 app.log.info("%s", recording.status())
+                app.stats.record("status", **recording.figures())
                 next_status = now + 1.0
             if deadline is not None and now >= deadline:
                 app.stop()
@@ -217,6 +226,7 @@ def body(app: Application) -> None:
     elapsed = time.monotonic() - started
     written = sum(c.bytes for c in recording.counts.values())
     size = recording.file_size()
+    app.stats.record("summary", seconds=elapsed, file_bytes=size, **recording.figures())
     for topic, counts in recording.counts.items():
         app.log.info("summary %s: messages=%d changes=%d MB=%.3f lost=%d dds_lost=%d", topic, counts.messages,
                      counts.changes, counts.bytes / 1e6, counts.lost, counts.dds_lost)

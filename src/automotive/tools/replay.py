@@ -1,9 +1,9 @@
 """Replayer: writes the samples of an MCAP recording back onto the databus, as recorded.
 
-Data flow:  FILE (apps.record, or rosbag2 MCAP with the same topics)  -->  each channel's topic and schema matched to
-a flow of the system (automotive.flows)  -->  the recorded CDR bytes written unchanged (automotive.rawsample) with
-the flow's writer QoS, at the recorded pace scaled by --rate (0: as fast as flow control allows); disposals and
-unregistrations replayed as such.
+Data flow:  FILE (automotive.tools.record, or rosbag2 MCAP with the same topics)  -->  each channel's topic and schema
+matched to a flow of the system (automotive.tools.flows)  -->  the recorded CDR bytes written unchanged
+(automotive.wire.rawsample) with the flow's writer QoS, at the recorded pace scaled by --rate (0: as fast as flow
+control allows); disposals and unregistrations replayed as such.
 
 A channel whose topic or schema is not one of the system's is skipped (said once). The replayed samples carry the
 time of their replay as source timestamp, as a live writer's would. At the end, reliable readers get up to 10 s to
@@ -22,10 +22,10 @@ from typing import Any
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 
-from automotive.app import Application, run
-from automotive.errors import ConfigError
-from automotive.flows import Flow, select, system_flows
-from automotive.rawsample import RawSample, RawWriter, SampleKind
+from automotive.bus.app import Application, run
+from automotive.bus.errors import ConfigError
+from automotive.tools.flows import Flow, select, system_flows
+from automotive.wire.rawsample import RawSample, RawWriter, SampleKind
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ACK_TIMEOUT_S = 10.0
@@ -66,7 +66,7 @@ def open_recording(path: Path) -> tuple[Any, SeekingReader]:
 
 
 def flow_of(channel: Any, flows: dict[str, Flow]) -> tuple[Flow | None, SampleKind]:
-    """The flow a channel feeds: by its DDS topic (apps.record's metadata) or its name, a ROS 2 name such as
+    """The flow a channel feeds: by its DDS topic (automotive.tools.record's metadata) or its name, a ROS 2 name such as
     /LidarTopic standing for the DDS topic rt/LidarTopic."""
     metadata = channel.metadata or {}
     kind = {kind.value: kind for kind in SampleKind}.get(metadata.get("dds_sample_kind", ""), SampleKind.DATA)
@@ -84,7 +84,7 @@ def body(app: Application) -> None:
     start_s, end_s = app.args.start, app.args.end
     if start_s is not None and end_s is not None and end_s < start_s:
         raise ConfigError(f"--end {end_s:g} is before --start {start_s:g}")
-    all_flows = system_flows()
+    all_flows = system_flows(app.props.folder)
     chosen = select(all_flows, app.args.topics)
     flows = {flow.topic: flow for flow in chosen}
     known = {flow.topic: flow for flow in all_flows}

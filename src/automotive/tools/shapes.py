@@ -1,7 +1,7 @@
 """A small Shapes Demo: publish a moving circle, or print the circles others publish.
 
-    python -m apps.shapes publish --color BLUE [--shapesize 30]
-    python -m apps.shapes subscribe
+    python -m automotive.tools.shapes publish --color BLUE [--shapesize 30]
+    python -m automotive.tools.shapes subscribe
 
 Same topic (Circle), type (ShapeType: color key, x, y, shapesize; appendable) and QoS conventions as RTI Shapes
 Demo (the DDS defaults: reliable writer, best-effort reader; XCDR1 on the wire, which RTI readers accept), so it
@@ -22,8 +22,8 @@ from typing import Any
 
 from cyclonedds.core import InstanceState
 
-from automotive.app import Application, run
-from automotive.errors import ConfigError
+from automotive.bus.app import Application, run
+from automotive.bus.errors import ConfigError
 from automotive.types.automotive import ShapeType
 
 BOX_WIDTH, BOX_HEIGHT = 240, 270

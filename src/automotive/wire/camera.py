@@ -6,7 +6,7 @@ treats ``data`` as one block already, but it grows its buffer from 512 bytes by 
 twice more (about 11 ms for a 4 MiB frame); reading copies the sample three times (about 3.5 ms). For this one
 fixed layout the codec writes the CDR stream itself into a buffer allocated once (the 16 header bytes packed with
 ``struct``, the image copied in by one ``memcpy``) and hands it to Cyclone's C layer as the writer's serialized
-sample (``automotive.rawsample``), and on the reading side it parses the 16 header bytes and returns the image as
+sample (``automotive.wire.rawsample``), and on the reading side it parses the 16 header bytes and returns the image as
 a ``memoryview`` of the received buffer, without a copy. ``tests/test_camera.py`` checks that the bytes are those of
 Cyclone's serializer, in XCDR1 and XCDR2, both byte orders.
 """
@@ -20,20 +20,20 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Policy
 from cyclonedds.sub import DataReader
 
-from automotive.errors import ConfigError
-from automotive.lfsr import FramePattern, frame_offset
-from automotive.rawsample import RawReader, RawWriter, SampleKind
+from automotive.bus.errors import ConfigError
 from automotive.types.CameraImage import (
     CameraImageData,
     CameraImageData_1MiB,
     CameraImageData_4MiB,
     CameraImageData_64KiB,
 )
+from automotive.wire.rawsample import RawReader, RawWriter, SampleKind
 
 # config.imageSize values: the IDL's frame (1366 x 768 x 4 bytes) and the sized variants for trying other sizes.
 FRAME_TYPES: dict[str, type[Any]] = {
@@ -77,6 +77,29 @@ def tune_process_for_large_frames() -> None:
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt(_M_MMAP_THRESHOLD, 64 * 1024 * 1024)
     mallopt(_M_TRIM_THRESHOLD, _KEEP_HEAP_BYTES)
+
+
+class FrameSource(Protocol):
+    """Frames that are windows of one byte stream (the camera's test pattern, :mod:`automotive.sim.lfsr`): frame
+    ``seqnum`` is ``stream[offset(seqnum):offset(seqnum) + size]``, so a writer can send it without a copy."""
+
+    size: int
+    stream: bytes
+
+    def offset(self, seqnum: int) -> int: ...
+
+    def frame(self, seqnum: int) -> memoryview: ...
+
+
+def writes_xcdr2(writer: DataWriter[Any]) -> bool:
+    """Whether ``writer`` writes XCDR2, by the rule of Cyclone's DataWriter.write: XCDR1 when its data
+    representation allows only XCDR1, XCDR2 when it allows only XCDR2, else the type's own (XCDR2 for the
+    appendable frame types)."""
+    qos = writer.get_qos()
+    if Policy.DataRepresentation not in qos:
+        return True
+    policy = qos[Policy.DataRepresentation]
+    return not (policy.use_cdrv0_representation and not policy.use_xcdrv2_representation)
 
 
 def frame_size(data_type: type[Any]) -> int:
@@ -169,18 +192,15 @@ class FrameWriter:
     """Writes frames through a DataWriter of a frame type, bypassing the generic serializer.
 
     ``write`` copies the image once into a buffer allocated once. ``write_pattern`` copies nothing: the frames of a
-    :class:`FramePattern` are windows of one stream, so the writer keeps that stream with room for a header in
+    :class:`FrameSource` are windows of one stream, so the writer keeps that stream with room for a header in
     front, writes the header over the bytes just before the frame, hands that span to Cyclone (which copies it
     into its own sample before returning) and puts the borrowed bytes back.
     """
 
-    def __init__(self, writer: DataWriter[Any], pattern: FramePattern | None = None):
+    def __init__(self, writer: DataWriter[Any], pattern: FrameSource | None = None):
         self.writer = writer
         self._raw = RawWriter(writer)
-        # The DataWriter knows which representation its QoS allows: False = XCDR1, True = XCDR2, None = the type's
-        # own (XCDR2 for an appendable type), exactly as DataWriter.write decides.
-        use_version_2 = getattr(writer, "_use_version_2", None)
-        self.codec = FrameCodec(writer.data_type, xcdr2=use_version_2 is not False)
+        self.codec = FrameCodec(writer.data_type, xcdr2=writes_xcdr2(writer))
         length = self.codec.header_length + self.codec.size
         self._padded_length = (length + 3) & ~3  # Cyclone takes whole 4-byte units, as DataWriter.write pads
         self._buffer = bytearray(self._padded_length)
@@ -205,7 +225,7 @@ class FrameWriter:
         """Write the pattern's frame for ``seqnum`` without copying it; return its timestamp (ns)."""
         if self.pattern is None:
             raise ValueError("this FrameWriter has no pattern")
-        start = frame_offset(seqnum)  # the frame's image begins header_length bytes further on
+        start = self.pattern.offset(seqnum)  # the frame's image begins header_length bytes further on
         end = start + self.codec.header_length
         borrowed = bytes(self._stream_view[start:end])
         try:

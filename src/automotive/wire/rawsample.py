@@ -12,6 +12,9 @@ Two ways to take:
 - :meth:`RawReader.take` copies each sample's bytes into a ``bytes`` (for queues and files), keys included;
 - :meth:`RawReader.lend` lends Cyclone's own received buffers as ``memoryview``s, valid inside a ``with`` block
   (``dds_takecdr`` + ``ddsi_serdata_to_ser_ref``): no copy at all, for 4 MiB camera frames.
+
+How the bytes get in and out of Cyclone is :mod:`automotive.cyclone.serdata`'s business (Cyclone's C layer on the
+tested version, its public API otherwise).
 """
 
 from __future__ import annotations
@@ -24,20 +27,12 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
-from cyclonedds._clayer import (
-    ddspy_dispose,
-    ddspy_dispose_ts,
-    ddspy_take,
-    ddspy_unregister_instance,
-    ddspy_unregister_instance_ts,
-    ddspy_write,
-    ddspy_write_ts,
-)
-from cyclonedds.core import DDSException, InstanceState, SampleState, ViewState
+from cyclonedds.core import InstanceState
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
-ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
+from automotive.cyclone import serdata
+
 Buffer = bytes | bytearray | memoryview
 
 
@@ -78,50 +73,6 @@ def key_to_sample(data_type: type[Any], key_cdr: Buffer, xcdr2: bool = False) ->
     invalid sample carries), the other members at their defaults: what dispose and unregister take."""
     key = bytes(key_cdr) if len(key_cdr) >= 4 else _EMPTY_KEY  # Cyclone lends no bytes for a keyless type's key
     return bytes(data_type.deserialize_key(key).serialize(use_version_2=xcdr2))
-
-
-class _IoVec(ctypes.Structure):
-    _fields_ = [("base", ctypes.c_void_p), ("length", ctypes.c_size_t)]  # struct iovec (ddsrt_iovec_t)
-
-
-class _SerdataAccess:
-    """Cyclone's C functions that lend a taken sample's serialized bytes (all exported by libddsc 11)."""
-
-    def __init__(self) -> None:
-        from cyclonedds.internal import dds_c_t, load_cyclonedds
-
-        library = load_cyclonedds()
-        self.sample_info = dds_c_t.sample_info
-        self.takecdr = library.dds_takecdr
-        self.takecdr.argtypes = [ctypes.c_int32, ctypes.POINTER(ctypes.c_void_p), ctypes.c_uint32,
-                                 ctypes.POINTER(dds_c_t.sample_info), ctypes.c_uint32]
-        self.takecdr.restype = ctypes.c_int32
-        self.size = library.ddsi_serdata_size
-        self.size.argtypes = [ctypes.c_void_p]
-        self.size.restype = ctypes.c_uint32
-        self.to_ser_ref = library.ddsi_serdata_to_ser_ref
-        self.to_ser_ref.argtypes = [ctypes.c_void_p, ctypes.c_size_t, ctypes.c_size_t, ctypes.POINTER(_IoVec)]
-        self.to_ser_ref.restype = ctypes.c_void_p
-        self.to_ser_unref = library.ddsi_serdata_to_ser_unref
-        self.to_ser_unref.argtypes = [ctypes.c_void_p, ctypes.POINTER(_IoVec)]
-        self.to_ser_unref.restype = None
-        self.unref = library.ddsi_serdata_unref
-        self.unref.argtypes = [ctypes.c_void_p]
-        self.unref.restype = None
-
-
-_serdata_access: _SerdataAccess | None = None
-
-
-def _serdata() -> _SerdataAccess | None:
-    """The C functions, or None when this Cyclone build lacks them (then samples are taken with a copy)."""
-    global _serdata_access
-    if _serdata_access is None:
-        try:
-            _serdata_access = _SerdataAccess()
-        except (AttributeError, ImportError, OSError):
-            return None
-    return _serdata_access
 
 
 def release_lent_views(views: list[memoryview], arrays: list[ctypes.Array[ctypes.c_char]], what: str,
@@ -166,20 +117,21 @@ class LentSamples:
 
 
 class RawReader:
-    """Takes serialized samples from a DataReader of any type, never deserializing their data."""
+    """Takes serialized samples from a DataReader of any type, never deserializing their data (on the tested
+    Cyclone version; see :mod:`automotive.cyclone.serdata`)."""
 
     def __init__(self, reader: DataReader[Any], zero_copy: bool = True):
         self.reader = reader
         self.data_type: type[Any] = reader.topic.data_type
         self.data_type.__idl__.populate()  # Cyclone Python works out a type's keys on first use
         self._keyless = bool(self.data_type.__idl__.keyless)
-        self._access = _serdata() if zero_copy else None
+        self._lender = serdata.lender() if zero_copy else None
 
     @property
     def zero_copy(self) -> bool:
-        return self._access is not None
+        return self._lender is not None
 
-    def _samples(self, data: Buffer, info: Any) -> list[RawSample]:
+    def _samples(self, data: Buffer, info: Any, whole_key_sample: bool = False) -> list[RawSample]:
         """The sample(s) one taken sample stands for.
 
         A disposal or unregistration that arrives while its instance still holds unread data produces no sample of
@@ -188,7 +140,10 @@ class RawReader:
         stamp, writer, instance, state = (info.source_timestamp, _handle(info.publication_handle),
                                           _handle(info.instance_handle), info.instance_state)
         if not info.valid_data:
-            key = key_to_sample(self.data_type, data) if data or self._keyless else b""
+            if whole_key_sample:
+                key = bytes(data)
+            else:
+                key = key_to_sample(self.data_type, data) if data or self._keyless else b""
             return [RawSample(key, _state_change(state), stamp, writer, instance, state)]
         samples = [RawSample(data, SampleKind.DATA, stamp, writer, instance, state)]
         if state != InstanceState.Alive and info.sample_rank == 0:
@@ -196,13 +151,10 @@ class RawReader:
         return samples
 
     def take(self, limit: int = 64) -> list[RawSample]:
-        """Take up to ``limit`` samples, each with its own copy of the bytes (Cyclone Python's take)."""
-        result = ddspy_take(self.reader._ref, ANY_STATE, limit)
-        if isinstance(result, int):
-            raise DDSException(result, f"Occurred while taking serialized samples in {self.reader!r}")
+        """Take up to ``limit`` samples, each with its own copy of the bytes."""
         samples = []
-        for serialized, info in result:
-            samples.extend(self._samples(serialized, info))
+        for taken in serdata.take(self.reader, limit):
+            samples.extend(self._samples(taken.data, taken.info, taken.whole_key_sample))
         return samples
 
     def drain(self, limit: int = 64) -> Iterator[tuple[RawSample, int]]:
@@ -220,50 +172,42 @@ class RawReader:
         """Take up to ``limit`` samples lending Cyclone's buffers: ``with reader.lend() as samples: ...``.
 
         Cyclone lends no key with a disposal or unregistration: for a keyed type its data is then empty (use
-        :meth:`take` where the key matters)."""
-        if self._access is None:
+        :meth:`take` where the key matters). Without a lender (see :mod:`automotive.cyclone.serdata`) the samples
+        are taken with a copy."""
+        if self._lender is None:
             return LentSamples(self.take(limit))
-        access = self._access
-        pointers = (ctypes.c_void_p * limit)()
-        infos = (access.sample_info * limit)()
-        count = access.takecdr(self.reader._ref, pointers, limit, infos, ANY_STATE)
-        if count < 0:
-            raise DDSException(count, f"Occurred while taking serialized samples in {self.reader!r}")
+        buffers, give_back = self._lender.lend(self.reader, limit)
         samples: list[RawSample] = []
-        lent: list[tuple[int, _IoVec]] = []
         arrays: list[ctypes.Array[ctypes.c_char]] = []
         views: list[memoryview] = []
-        taken = [pointers[index] for index in range(count)]
-        try:
-            for index in range(count):
-                info = infos[index]
-                pointer = pointers[index]
-                iov = _IoVec()
-                access.to_ser_ref(pointer, 0, access.size(pointer), ctypes.byref(iov))
-                lent.append((pointer, iov))
-                if iov.length:
-                    arrays.append((ctypes.c_char * iov.length).from_address(iov.base))
-                    views.append(memoryview(arrays[-1]).cast("B"))
-                    samples.extend(self._samples(views[-1], info))
-                else:  # a disposal or unregistration: Cyclone lends no key
-                    samples.extend(self._samples(b"", info))
-        except BaseException:
-            self._give_back(samples, views, arrays, lent, taken)
-            raise
-        return LentSamples(samples, lambda: self._give_back(samples, views, arrays, lent, taken))
 
-    def _give_back(self, samples: list[RawSample], views: list[memoryview],
-                   arrays: list[ctypes.Array[ctypes.c_char]], lent: list[tuple[int, _IoVec]],
-                   taken: list[int]) -> None:
-        assert self._access is not None
-        for sample in samples:
-            if isinstance(sample.data, memoryview):
-                sample.data.release()
-        release_lent_views(views, arrays, "a lent sample's data", "bytes(sample.data)")
-        for pointer, iov in lent:
-            self._access.to_ser_unref(pointer, ctypes.byref(iov))
-        for pointer in taken:
-            self._access.unref(pointer)
+        def release() -> None:
+            for sample in samples:
+                if isinstance(sample.data, memoryview):
+                    sample.data.release()
+            release_lent_views(views, arrays, "a lent sample's data", "bytes(sample.data)")
+            give_back()
+
+        try:
+            self._view_lent(buffers, samples, arrays, views)
+        except BaseException:
+            buffers.clear()
+            release()
+            raise
+        return LentSamples(samples, release)
+
+    def _view_lent(self, buffers: list[serdata.LentBuffer], samples: list[RawSample],
+                   arrays: list[ctypes.Array[ctypes.c_char]], views: list[memoryview]) -> None:
+        """Views of the lent buffers; ``arrays`` and ``views`` become the only holders of them (a function of its
+        own, so that no loop variable keeps a buffer alive past the release check)."""
+        for buffer in buffers:
+            if buffer.array is not None:
+                arrays.append(buffer.array)
+                views.append(memoryview(buffer.array).cast("B"))
+                samples.extend(self._samples(views[-1], buffer.info))
+            else:  # a disposal or unregistration: Cyclone lends no key
+                samples.extend(self._samples(b"", buffer.info))
+        buffers.clear()
 
 
 class RawWriter:
@@ -277,24 +221,17 @@ class RawWriter:
         self.writer = writer
 
     def write(self, data: Buffer, timestamp: int | None = None) -> None:
-        self._check(ddspy_write(self.writer._ref, data) if timestamp is None
-                    else ddspy_write_ts(self.writer._ref, data, timestamp), "writing")
+        serdata.write(self.writer, data, timestamp)
 
     def dispose(self, data: Buffer, timestamp: int | None = None) -> None:
         """Dispose the instance whose key ``data`` (a whole serialized sample) holds."""
-        self._check(ddspy_dispose(self.writer._ref, data) if timestamp is None
-                    else ddspy_dispose_ts(self.writer._ref, data, timestamp), "disposing")
+        serdata.dispose(self.writer, data, timestamp)
 
     def unregister(self, data: Buffer, timestamp: int | None = None) -> None:
         """Unregister the instance whose key ``data`` (a whole serialized sample) holds."""
-        self._check(ddspy_unregister_instance(self.writer._ref, data) if timestamp is None
-                    else ddspy_unregister_instance_ts(self.writer._ref, data, timestamp), "unregistering")
+        serdata.unregister(self.writer, data, timestamp)
 
     def put(self, sample: RawSample, timestamp: int | None = None) -> None:
         """Write, dispose or unregister, as ``sample.kind`` says."""
         {SampleKind.DATA: self.write, SampleKind.DISPOSE: self.dispose,
          SampleKind.UNREGISTER: self.unregister}[sample.kind](sample.data, timestamp)
-
-    def _check(self, result: int | None, doing: str) -> None:
-        if result is not None and result < 0:
-            raise DDSException(result, f"Occurred while {doing} a serialized sample in {self.writer!r}")

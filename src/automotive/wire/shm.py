@@ -5,7 +5,7 @@ transport sits beside DDS rather than inside it, the way RTI's Zero Copy does fo
 
 * The shared-memory sample holds exactly the bytes of the DDS sample (encapsulation, header fields, image). The
   publisher builds the frame in place in memory it loans from iceoryx2; a subscriber decodes it with the same
-  :class:`~automotive.camera.FrameCodec` as a DDS sample and views the image in place, read-only.
+  :class:`~automotive.wire.camera.FrameCodec` as a DDS sample and views the image in place, read-only.
 * One iceoryx2 publish-subscribe service per DDS topic and domain (:func:`service_name`), plus two event services:
   the publisher's "frame sent" / "leaving" notifications wake the subscribers (no polling), and the subscribers'
   "frame consumed" notifications drive the publisher's flow control.
@@ -34,10 +34,10 @@ from typing import Any
 import iceoryx2 as iox2
 from cyclonedds.qos import Policy, Qos
 
-from automotive.camera import Frame, FrameCodec, FrameWriter, TakenFrames
-from automotive.errors import ConfigError
-from automotive.properties import Properties
-from automotive.rawsample import release_lent_views
+from automotive.bus.errors import ConfigError
+from automotive.bus.properties import Properties
+from automotive.wire.camera import Frame, FrameCodec, FrameWriter, TakenFrames
+from automotive.wire.rawsample import release_lent_views
 
 TRANSPORTS = ("dds", "shm")
 DEFAULT_PREFIX = "iox2_"  # iceoryx2's own default prefix
@@ -320,21 +320,22 @@ class SharedFrameReader:
             entity.delete()
 
 
-def open_for(app: Any, role: str, default_topic: str) -> SharedMemory | None:
-    """The shared memory of an application's topic ``topic.<role>`` when ``config.transport=shm``, else None.
+def open_for(props: Properties, program: str, domain_id: int, topic: str,
+             log: logging.Logger = _log) -> SharedMemory | None:
+    """The shared memory of a program's ``topic`` when its properties say ``config.transport=shm``, else None.
 
     ``config.shmPrefix`` names iceoryx2's files (``/dev/shm/<prefix>...``): processes see each other only under the
     same prefix (tests use a private one).
     """
-    chosen = transport(app.props)
-    prefix = app.props.get_str("config.shmPrefix", DEFAULT_PREFIX)
+    chosen = transport(props)
+    prefix = props.get_str("config.shmPrefix", DEFAULT_PREFIX)
     if chosen != "shm":
         return None
     if not prefix or not prefix.replace("_", "").replace("-", "").isalnum():
-        raise ConfigError(f"{app.props.where('config.shmPrefix')}: config.shmPrefix = '{prefix}' is not a valid file "
+        raise ConfigError(f"{props.where('config.shmPrefix')}: config.shmPrefix = '{prefix}' is not a valid file "
                           "name prefix (expected letters, digits, '_' or '-')")
-    memory = SharedMemory(app.name, app.domain_id, app.topic_name(role, default_topic), prefix, app.log)
+    memory = SharedMemory(program, domain_id, topic, prefix, log)
     if memory.stale_removed:
-        app.log.info("shared memory: removed the files of %d dead process(es)", memory.stale_removed)
-    app.log.info("shared memory: iceoryx2 service '%s' (prefix %s)", memory.name, prefix)
+        log.info("shared memory: removed the files of %d dead process(es)", memory.stale_removed)
+    log.info("shared memory: iceoryx2 service '%s' (prefix %s)", memory.name, prefix)
     return memory

@@ -1,0 +1,68 @@
+"""Machine-readable status: JSON lines, one object a line, for benchmarks and tests (``--stats FILE``).
+
+Log lines are for people and may change wording; what a program counts goes here too, under stable names. Every
+record has ``t`` (seconds since the epoch), ``program`` (the instance name) and ``kind`` (what the record is:
+``window`` and ``totals`` of camera_sub, ``matched`` of every endpoint, ``list`` of sensor_fusion...), then fields of
+its own. Writes are line-buffered and thread-safe (listener threads report too); a reader of the file sees whole
+lines.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+from automotive.bus.errors import ConfigError
+
+
+class Stats:
+    """Where a program's status records go; without a file, nowhere (every call costs nothing)."""
+
+    def __init__(self, path: Path | None, program: str):
+        self.path = path
+        self.program = program
+        self._lock = threading.Lock()
+        self._stream: IO[str] | None = None
+        if path is not None:
+            try:
+                self._stream = open(path, "a", encoding="utf-8", buffering=1)
+            except OSError as error:
+                raise ConfigError(f"--stats {path}: cannot write ({error.strerror})") from None
+
+    @property
+    def enabled(self) -> bool:
+        return self._stream is not None
+
+    def record(self, kind: str, **fields: Any) -> None:
+        if self._stream is None:
+            return
+        line = json.dumps({"t": round(time.time(), 6), "program": self.program, "kind": kind, **fields},
+                          separators=(",", ":"))
+        with self._lock:
+            if self._stream is not None:
+                self._stream.write(line + "\n")
+
+    def close(self) -> None:
+        with self._lock:
+            if self._stream is not None:
+                self._stream.close()
+                self._stream = None
+
+
+def read(path: Path, kind: str | None = None) -> Iterator[dict[str, Any]]:
+    """The records of a stats file (of one ``kind``), skipping a last line still being written."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return
+    for line in text.splitlines():
+        try:
+            record = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(record, dict) and (kind is None or record.get("kind") == kind):
+            yield record

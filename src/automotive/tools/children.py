@@ -1,0 +1,294 @@
+"""Child processes whose output is collected line by line: start, wait for a line, measure, stop.
+
+The one helper for every program that runs other programs (the launcher, the benchmarks) and for the tests:
+
+- each line of the child's output is kept with the time it arrived (``time.monotonic``) and the stream it came on,
+  and handed to an optional callback (the launcher writes log files and its console);
+- :meth:`Child.wait_for` waits, bounded, until a line matches (never a fixed sleep);
+- :meth:`Child.stop` sends SIGTERM (or another signal), waits, then SIGKILL;
+- :meth:`Child.cpu_seconds` and :meth:`Child.memory_bytes` come from psutil (children included if asked).
+
+:func:`program_command` is how a program of the project is started: ``python -m <module>`` with the running
+interpreter, so the child runs the same installation as the parent (no PATH, no PYTHONPATH needed).
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO
+
+import psutil
+
+DEFAULT_TIMEOUT = 30.0
+STDOUT, STDERR = "stdout", "stderr"
+
+# The programs of the project by the name people use (as the launcher and the tests name them), and their modules.
+APPS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "camera_pub",
+        "camera_sub")
+TOOLS = ("record", "replay", "bridge", "lidar_view", "shapes", "launch", "config_export", "make_scene_data")
+
+
+def program_module(name: str) -> str:
+    """The module of a program: ``vision`` -> ``automotive.apps.vision``, ``record`` -> ``automotive.tools.record``."""
+    if name in APPS:
+        return f"automotive.apps.{name}"
+    if name in TOOLS:
+        return f"automotive.tools.{name}"
+    raise ValueError(f"unknown program '{name}' (applications: {', '.join(APPS)}; tools: {', '.join(TOOLS)})")
+
+
+def program_command(name: str, *args: str, python: Sequence[str] = ()) -> list[str]:
+    """``[python, -m, module, args...]`` with the running interpreter (``python``: a prefix such as ``chrt``)."""
+    return [*python, sys.executable, "-m", program_module(name), *args]
+
+
+@dataclass(frozen=True)
+class Line:
+    time: float  # time.monotonic() when it was read
+    stream: str  # STDOUT or STDERR (STDOUT for both when stderr is merged)
+    text: str
+
+
+LineCallback = Callable[["Child", Line], None]
+
+
+class Child:
+    """One child process with its output collected (stderr merged into stdout unless ``separate_stderr``).
+
+    ``read=False`` defers the reader threads to :meth:`start_reading` (the launcher starts every child before any
+    thread exists: its ``preexec_fn`` runs between fork and exec, safe only in a single-threaded parent).
+    """
+
+    def __init__(self, name: str, command: Sequence[str], *, cwd: Path | None = None,
+                 env: dict[str, str] | None = None, stdin: bool = False, separate_stderr: bool = False,
+                 on_line: LineCallback | None = None, on_end: Callable[[Child, str], None] | None = None,
+                 new_session: bool = False,
+                 preexec_fn: Callable[[], None] | None = None, read: bool = True):
+        self.name = name
+        self.command = list(command)
+        full_env = dict(os.environ if env is None else env)
+        full_env["PYTHONUNBUFFERED"] = "1"
+        self.on_line = on_line
+        self.on_end = on_end
+        self.process = subprocess.Popen(
+            self.command, cwd=cwd, env=full_env, stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE if separate_stderr else subprocess.STDOUT,
+            stdin=subprocess.PIPE if stdin else subprocess.DEVNULL, start_new_session=new_session,
+            preexec_fn=preexec_fn)
+        self.records: list[Line] = []  # every line with its arrival time and stream
+        self._new_lines: queue.Queue[Line | None] = queue.Queue()
+        self._open_streams = 0
+        self._ended = False
+        self._readers: list[threading.Thread] = []
+        if read:
+            self.start_reading()
+
+    @property
+    def pid(self) -> int:
+        return self.process.pid
+
+    def start_reading(self) -> None:
+        streams = [(self.process.stdout, STDOUT)]
+        if self.process.stderr is not None:
+            streams.append((self.process.stderr, STDERR))
+        self._open_streams = len(streams)
+        for stream, label in streams:
+            reader = threading.Thread(target=self._read, args=(stream, label), daemon=True,
+                                      name=f"{self.name}-{label}")
+            self._readers.append(reader)
+            reader.start()
+
+    def _read(self, stream: IO[bytes] | None, label: str) -> None:
+        assert stream is not None
+        for raw in iter(stream.readline, b""):
+            line = Line(time.monotonic(), label, raw.decode("utf-8", errors="replace").rstrip("\r\n"))
+            self.records.append(line)
+            if self.on_line is not None:
+                self.on_line(self, line)
+            self._new_lines.put(line)
+        self._new_lines.put(None)  # this stream ended
+        if self.on_end is not None:
+            self.on_end(self, label)
+
+    # -- what it printed ---------------------------------------------------------------------------------------
+    @property
+    def lines(self) -> list[str]:
+        """The text of every line so far."""
+        return [line.text for line in list(self.records)]
+
+    @property
+    def output(self) -> str:
+        return "\n".join(self.lines)
+
+    def count(self, pattern: str) -> int:
+        regex = re.compile(pattern)
+        return sum(1 for line in list(self.records) if regex.search(line.text))
+
+    def matches(self, pattern: str | re.Pattern[str], since: int = 0) -> Iterator[tuple[Line, re.Match[str]]]:
+        """(line, match) of each line from line ``since`` on that matches ``pattern``."""
+        regex = re.compile(pattern) if isinstance(pattern, str) else pattern
+        for line in list(self.records)[since:]:
+            match = regex.search(line.text)
+            if match:
+                yield line, match
+
+    def wait_for_line(self, pattern: str | re.Pattern[str], timeout: float = DEFAULT_TIMEOUT, count: int = 1,
+                      since: int = 0) -> tuple[Line, re.Match[str]]:
+        """Wait until ``count`` lines from line ``since`` on match ``pattern``; the last of them and its match.
+
+        Raises AssertionError with the output so far when the child ends first or the time is up.
+        """
+        deadline = time.monotonic() + timeout
+        label = pattern if isinstance(pattern, str) else pattern.pattern
+        while True:
+            found = list(self.matches(pattern, since))
+            if len(found) >= count:
+                return found[count - 1]
+            if self._ended:
+                raise AssertionError(f"{self.name} ended (exit {self.process.wait()}) before {count}x /{label}/;"
+                                     " output:\n" + self.output[-4000:])
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise AssertionError(f"{self.name}: no {count}x /{label}/ within {timeout:.0f} s; output:\n"
+                                     + self.output[-4000:])
+            try:
+                if self._new_lines.get(timeout=min(remaining, 0.5)) is None:
+                    self._open_streams -= 1
+                    self._ended = self._open_streams <= 0
+            except queue.Empty:
+                if not self._readers and self.process.poll() is not None:
+                    self._ended = True
+
+    def wait_for(self, pattern: str, timeout: float = DEFAULT_TIMEOUT, count: int = 1) -> str:
+        """Wait until ``count`` lines match ``pattern``; return the last match's line."""
+        return self.wait_for_line(pattern, timeout, count)[0].text
+
+    def wait_for_more(self, pattern: str, more: int = 1, timeout: float = DEFAULT_TIMEOUT) -> str:
+        """Wait until ``more`` lines beyond those printed so far match ``pattern``; return the last match."""
+        return self.wait_for(pattern, timeout, count=self.count(pattern) + more)
+
+    # -- control -----------------------------------------------------------------------------------------------
+    def send(self, line: str) -> None:
+        """Write one line to the child's standard input (started with ``stdin=True``)."""
+        assert self.process.stdin is not None, f"{self.name} was started without stdin=True"
+        self.process.stdin.write((line + "\n").encode())
+        self.process.stdin.flush()
+
+    def send_signal(self, sig: int, group: bool = False) -> None:
+        """Send ``sig`` to the child (``group``: to its process group, its own children too); gone is fine."""
+        try:
+            if group:
+                os.killpg(self.process.pid, sig)
+                return
+        except (ProcessLookupError, PermissionError):
+            pass
+        try:
+            self.process.send_signal(sig)
+        except ProcessLookupError:
+            pass
+
+    @contextmanager
+    def frozen(self) -> Iterator[None]:
+        """The process stopped (SIGSTOP: hung, not dead) inside the block, continued (SIGCONT) after it."""
+        self.send_signal(signal.SIGSTOP)
+        try:
+            yield
+        finally:
+            self.send_signal(signal.SIGCONT)
+
+    def poll(self) -> int | None:
+        return self.process.poll()
+
+    def join_output(self, timeout: float = 5.0) -> None:
+        """Wait for the reader threads (the last lines) after the process ended."""
+        for reader in self._readers:
+            reader.join(timeout=timeout)
+
+    def wait_exit(self, timeout: float = DEFAULT_TIMEOUT) -> int:
+        code = self.process.wait(timeout=timeout)
+        self.join_output()
+        return code
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 15.0, group: bool = False) -> int:
+        """Send ``sig``, wait up to ``timeout`` seconds, then SIGKILL; the exit code (negative: the signal)."""
+        if self.process.poll() is None:
+            self.send_signal(sig, group)
+            try:
+                self.process.wait(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                self.send_signal(signal.SIGKILL, group)
+                self.process.wait()
+        self.join_output()
+        return self.process.returncode
+
+    # -- figures -----------------------------------------------------------------------------------------------
+    def _psutil(self) -> psutil.Process | None:
+        try:
+            return psutil.Process(self.process.pid)
+        except psutil.Error:
+            return None
+
+    def cpu_seconds(self, children: bool = False) -> float:
+        """User + system CPU time so far (1 s per second = one core busy); NaN once the process is gone."""
+        process = self._psutil()
+        try:
+            if process is None:
+                return float("nan")
+            times = process.cpu_times()
+            total = times.user + times.system
+            if children:
+                total += sum(child.cpu_times().user + child.cpu_times().system
+                             for child in process.children(recursive=True))
+            return float(total)
+        except psutil.Error:
+            return float("nan")
+
+    def memory_bytes(self) -> int:
+        """Resident memory (RSS) now; 0 once the process is gone."""
+        process = self._psutil()
+        try:
+            return int(process.memory_info().rss) if process is not None else 0
+        except psutil.Error:
+            return 0
+
+
+def stop_all(children: Sequence[Child], sig: int = signal.SIGTERM, timeout: float = 15.0) -> None:
+    """Signal every child at once, then wait for each (SIGKILL after ``timeout`` seconds in all)."""
+    for child in children:
+        if child.poll() is None:
+            child.send_signal(sig)
+    deadline = time.monotonic() + timeout
+    for child in children:
+        try:
+            child.process.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            child.send_signal(signal.SIGKILL)
+            child.process.wait()
+        child.join_output()
+
+
+def alive(pid: int) -> bool:
+    """True if the process exists and is not a zombie (a zombie has ended; only its exit status is left)."""
+    try:
+        return psutil.Process(pid).status() != psutil.STATUS_ZOMBIE
+    except psutil.Error:
+        return False
+
+
+def command_line(pid: int) -> str:
+    """A process's command line, words joined by spaces ("" if it is gone)."""
+    try:
+        return " ".join(psutil.Process(pid).cmdline())
+    except psutil.Error:
+        return ""
