@@ -73,19 +73,22 @@ def test_bad_properties(apps, app: str, args: list[str], pattern: str) -> None: 
     assert_one_line_error(apps.run(app, *args), rf"^{app}: .*{pattern}")
 
 
-# The scripts the README prints, started as printed: through their shebang, with whatever python3 the PATH has
-# (not the project's .venv); each installs the project if needed and restarts itself in .venv.
-README_SCRIPTS = ["launch", "bench-lidar", "bench-large-data", "bench-scale", "bench-fastpath", "bench-failover",
-                  "bench-record"]
+# The commands the README and docs/ print, started as printed: scripts/launch through its shebang with whatever the
+# PATH has (not the project's .venv: it installs what is needed and runs the launcher of .venv), and the console
+# scripts of .venv/bin (the benchmarks; the launcher's own).
+CONSOLE_SCRIPTS = ("automotive-launch", "automotive-bench-lidar", "automotive-bench-large-data",
+                   "automotive-bench-scale",
+                   "automotive-bench-fastpath", "automotive-bench-failover", "automotive-bench-record")
+PRINTED_COMMANDS = [("scripts/launch", "scripts/launch")] + [(f".venv/bin/{name}", name) for name in CONSOLE_SCRIPTS]
 
 
-@pytest.mark.parametrize("script", README_SCRIPTS)
-def test_scripts_run_as_printed_and_refuse_bad_arguments_in_one_line(script: str) -> None:
+@pytest.mark.parametrize(("command", "prog"), PRINTED_COMMANDS)
+def test_commands_run_as_printed_and_refuse_bad_arguments_in_one_line(command: str, prog: str) -> None:
     env = {key: value for key, value in os.environ.items() if key not in ("VIRTUAL_ENV", "PYTHONPATH")}
     env["PATH"] = os.pathsep.join(part for part in env.get("PATH", "").split(os.pathsep)
                                   if Path(part).resolve() != (ROOT / ".venv" / "bin").resolve())
-    command = [str(ROOT / "scripts" / script)]
-    usage = subprocess.run([*command, "--help"], capture_output=True, text=True, env=env, timeout=120)
-    assert usage.returncode == 0 and f"usage: scripts/{script}" in usage.stdout, usage.stdout + usage.stderr
-    result = subprocess.run([*command, "--no-such-option"], capture_output=True, text=True, env=env, timeout=120)
-    assert_one_line_error(result, rf"^scripts/{script}: unrecognized arguments: --no-such-option")
+    usage = subprocess.run([command, "--help"], cwd=ROOT, capture_output=True, text=True, env=env, timeout=120)
+    assert usage.returncode == 0 and f"usage: {prog}" in usage.stdout, usage.stdout + usage.stderr
+    result = subprocess.run([command, "--no-such-option"], cwd=ROOT, capture_output=True, text=True, env=env,
+                            timeout=120)
+    assert_one_line_error(result, rf"^{prog}: unrecognized arguments: --no-such-option")

@@ -55,6 +55,7 @@ def body(app: Application) -> None:
             if owner.enabled and executed is not None and command.sample_id <= executed:
                 app.log.warning("stale command %d from %s ignored: command %d was executed already",
                                 command.sample_id, owner.owner_name, executed)
+                app.stats.record("stale_command", sample_id=command.sample_id, executed=executed)
                 continue
             executed = command.sample_id
             app.stats.record("command", sample_id=command.sample_id, owner=owner.owner_name)

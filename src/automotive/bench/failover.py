@@ -1,19 +1,19 @@
-#!/usr/bin/env python3
 """Failover of collision_avoidance in the running redundant system, measured at the vehicle platform and the HMI.
 
-    scripts/bench-failover                                  20 failovers on domain 87
-    scripts/bench-failover --failovers 5 --domain 88 --log-dir /tmp/failover
+    automotive-bench-failover                                  20 failovers on domain 87
+    automotive-bench-failover --failovers 5 --domain 88 --log-dir /tmp/failover
 
-The redundant system (scripts/launch --redundant) runs on loopback: vision every 100 ms, two sensor_fusion instances in
-event mode (strengths 20 and 10), two collision_avoidance instances (20 and 10), the vehicle platform and a console
+The redundant system (automotive-launch --redundant) runs on loopback: vision every 100 ms, two sensor_fusion instances
+in event mode (strengths 20 and 10), two collision_avoidance instances (20 and 10), the vehicle platform and a console
 HMI. The vision scene has a tall truck ahead 3.6 s of every 4 s, so alerts are written with every object list most of
 the time and the HMI has a change to show every 2 s or so.
 
 One failover: once the primary collision_avoidance (strength 20) owns the platform's commands and 10 of them were
 executed, it is killed (SIGKILL) at a random phase of the 100 ms command period. The gap is what the readers'
-owner-change lines say: the time between the source timestamps of the last sample of the dead primary and the first of
-the standby, at the vehicle platform (commands) and at the HMI (alerts; silent while all is clear, so an HMI gap there
-also holds the silence). Then the primary is restarted; it joins and takes over again (that gap is printed too).
+owner-change records say (--stats: JSON lines with wall-clock times): the time between the source timestamps of the
+last sample of the dead primary and the first of the standby, at the vehicle platform (commands) and at the HMI
+(alerts; silent while all is clear, so an HMI gap there also holds the silence). Then the primary is restarted; it
+joins and takes over again (that gap is printed too).
 
 At the end: min / median / p99 / max of the gaps and of the time from the kill to the platform's liveliness-lost line,
 and the checks of every failover: the platform's executed command numbers never went back, the HMI never showed an
@@ -27,83 +27,74 @@ from __future__ import annotations
 import argparse
 import os
 import random
-import re
+import shutil
 import signal
 import statistics
-import subprocess
 import sys
 import tempfile
-import threading
 import time
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from automotive import config
+from automotive.bus import stats as status_records
+from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.network import NetworkConfig
+from automotive.tools.children import Child, program_command, stop_all
 
-from automotive.bus.cli import ArgumentParser, run_in_project_venv  # noqa: E402
-
-run_in_project_venv(__file__, sys.argv[1:])  # Cyclone DDS is in the project's .venv
-
-from automotive.bus.network import NetworkConfig  # noqa: E402
-
+PROG = "automotive-bench-failover"
 PRIMARY, STANDBY = 20, 10
 LEASE_MS = 250
-GAP = re.compile(r"\[(\w+)\] owner changed: (\S+) \(strength \d+\) -> (\S+) \(strength \d+\), (-?\d+) ms after")
-LOST = re.compile(r"\[PlatformControl\] liveliness LOST of a writer")
-COMMAND = re.compile(r"vehicle_platform: command (\d+) stamped")
-SHOWN = re.compile(r"hmi: (DRIVER ALERT|all clear)")
-MADE = re.compile(r"collision_avoidance: (ALERT|all clear)")
-PRIMARY_OWNS = re.compile(r"\[PlatformControl\] owner(: | changed: .* -> )collision_avoidance \(strength 20\)")
 STALE_WINDOW_S = 2.0  # an alert change shown at the HMI must have been made by an instance this recently
 
+Record = dict[str, Any]
 
-@dataclass
-class Process:
-    name: str
-    popen: subprocess.Popen[str]
-    lines: list[tuple[float, str]] = field(default_factory=list)
 
-    def start_reading(self) -> None:
-        threading.Thread(target=self._read, daemon=True).start()
+class Program:
+    """A program of the redundant system with its status records (--stats) in ``workdir``."""
 
-    def _read(self) -> None:
-        assert self.popen.stdout is not None
-        for line in self.popen.stdout:
-            self.lines.append((time.monotonic(), line.rstrip("\n")))
+    def __init__(self, name: str, module: str, args: list[str], env: dict[str, str], workdir: Path, index: int):
+        self.name = name
+        self.stats = workdir / f"{index:02d}-{name}.jsonl"
+        self.child = Child(name, program_command(module, *args, "--stats", str(self.stats)), env=env)
 
-    def matches(self, pattern: re.Pattern[str], since: int = 0) -> list[re.Match[str]]:
-        return [match for _, line in self.lines[since:] if (match := pattern.search(line))]
+    def records(self, kind: str, since: float = 0.0,
+                match: Callable[[Record], bool] = lambda record: True) -> list[Record]:
+        """The records of ``kind`` written at or after ``since`` (time.time) that ``match`` accepts."""
+        return [record for record in status_records.read(self.stats, kind) if record["t"] >= since and match(record)]
 
-    def stamp_of(self, pattern: re.Pattern[str], since: int) -> float:
-        """When the first line from line ``since`` on that matches ``pattern`` was read (time.monotonic)."""
-        return next(stamp for stamp, line in self.lines[since:] if pattern.search(line))
-
-    def wait_for(self, pattern: re.Pattern[str], since: int, timeout: float, what: str,
-                 count: int = 1) -> re.Match[str]:
-        """The ``count``-th line from line ``since`` on that matches ``pattern``."""
+    def wait_for(self, kind: str, since: float, timeout: float, what: str, count: int = 1,
+                 match: Callable[[Record], bool] = lambda record: True) -> Record:
+        """The ``count``-th record of ``kind`` from ``since`` on that ``match`` accepts."""
         deadline = time.monotonic() + timeout
         while True:
-            found = self.matches(pattern, since)
+            found = self.records(kind, since, match)
             if len(found) >= count:
                 return found[count - 1]
-            if self.popen.poll() is not None:
-                raise RuntimeError(f"{self.name} ended (exit {self.popen.returncode}) while waiting for {what}")
+            if self.child.poll() is not None:
+                raise RuntimeError(f"{self.name} ended (exit {self.child.poll()}) while waiting for {what}")
             if time.monotonic() > deadline:
                 raise TimeoutError(f"no {what} within {timeout:g} s")
-            time.sleep(0.02)  # polling lines another thread appends
+            time.sleep(0.02)  # polling a file another process appends to
+
+
+def owner_change(topic: str, instance: str | None = None) -> Callable[[Record], bool]:
+    """An owner record of ``topic`` that follows a previous owner (to ``instance``, if given)."""
+    return lambda record: (record["topic"] == topic and record["previous"] is not None
+                           and (instance is None or record["instance"] == instance))
 
 
 class System:
-    def __init__(self, domain: int, data: Path, timeout: float):
+    def __init__(self, domain: int, data: Path, timeout: float, workdir: Path):
         self.common = ["--domain", str(domain), "-D", "config.redundant=true"]
         self.timeout = timeout
+        self.workdir = workdir
         self.random = random.Random(11)  # the same kill phases in every run
         self.env = dict(os.environ)
-        self.env["PYTHONPATH"] = str(ROOT) + (os.pathsep + self.env["PYTHONPATH"] if self.env.get("PYTHONPATH") else "")
-        self.env["PYTHONUNBUFFERED"] = "1"
         self.env["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()  # loopback only
-        self.processes: list[Process] = []
+        self.processes: list[Program] = []
         self.hmi = self.spawn("hmi", "hmi", ["--ui", "console"])
         self.platform = self.spawn("vehicle_platform", "vehicle_platform", [])
         self.standby = self.instance("collision_avoidance-2")
@@ -114,40 +105,30 @@ class System:
                                                "-D", f"config.ownershipStrength={strength}"])
         self.spawn("vision", "vision", ["-D", "config.pubInterval=100", "-D", f"dataFile={data}"])
 
-    def spawn(self, name: str, module: str, args: list[str]) -> Process:
-        popen = subprocess.Popen([sys.executable, "-m", f"apps.{module}", *self.common, *args], cwd=ROOT,
-                                 env=self.env, text=True, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                 stdin=subprocess.DEVNULL)
-        process = Process(name, popen)
-        process.start_reading()
-        self.processes.append(process)
-        return process
+    def spawn(self, name: str, module: str, args: list[str]) -> Program:
+        program = Program(name, module, [*self.common, *args], self.env, self.workdir, len(self.processes))
+        self.processes.append(program)
+        return program
 
-    def instance(self, name: str) -> Process:
+    def instance(self, name: str) -> Program:
         strength = STANDBY if name.endswith("-2") else PRIMARY
         return self.spawn(name, "collision_avoidance", ["-D", f"config.instanceName={name}",
                                                          "-D", f"config.ownershipStrength={strength}"])
 
     def stop(self, log_dir: Path | None) -> None:
-        for process in self.processes:
-            if process.popen.poll() is None:
-                process.popen.send_signal(signal.SIGTERM)
-        for process in self.processes:
-            try:
-                process.popen.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                process.popen.kill()
-                process.popen.wait()
+        stop_all([program.child for program in self.processes], timeout=15)
         if log_dir is not None:
             log_dir.mkdir(parents=True, exist_ok=True)
-            for index, process in enumerate(self.processes):
-                (log_dir / f"{index:02d}-{process.name}.log").write_text(
-                    "".join(f"{stamp:.3f} {line}\n" for stamp, line in process.lines))
+            for program in self.processes:
+                (log_dir / f"{program.stats.stem}.log").write_text(
+                    "".join(f"{line.time:.3f} {line.text}\n" for line in program.child.records))
+                if program.stats.is_file():
+                    shutil.copyfile(program.stats, log_dir / program.stats.name)
 
 
 def write_scene(path: Path) -> Path:
     """40 rows (4 s at 100 ms): a car ahead all along, a tall truck first in the list in rows 0..35."""
-    header = (ROOT / "properties" / "data" / "vision.csv").read_text().splitlines()[0]
+    header = (config.properties_dir() / "data" / "vision.csv").read_text().splitlines()[0]
     rows = [header]
     car = ["5", "12.5", "-1.5", "0.0", "3.25", "0.5", "-0.25", "4.5", "1.5", "1.75"]
     truck = ["6", "20.0", "0.0", "0.0", "1.5", "0.0", "0.0", "10.0", "3.5", "2.5"]
@@ -188,45 +169,47 @@ class Failover:
 def failover(system: System, number: int) -> Failover:
     """Kill the primary, measure, restart it."""
     platform, hmi = system.platform, system.hmi
-    platform.wait_for(COMMAND, len(platform.lines), system.timeout, "10 commands", count=10)
+    platform.wait_for("command", time.time(), system.timeout, "10 commands", count=10)
     time.sleep(system.random.uniform(0, 0.1))  # the kill at a random phase of the 100 ms command period
-    platform_mark, hmi_mark = len(platform.lines), len(hmi.lines)
-    killed_at = time.monotonic()
-    system.primary.popen.send_signal(signal.SIGKILL)
-    system.primary.popen.wait()
-    platform.wait_for(LOST, platform_mark, system.timeout, "the platform's liveliness report")
-    loss_reported = (platform.stamp_of(LOST, platform_mark) - killed_at) * 1000
-    down = platform.wait_for(GAP, platform_mark, system.timeout, "the platform's owner change to the standby")
-    if down.group(3) != "collision_avoidance-2":
-        raise RuntimeError(f"failover {number}: the platform followed {down.group(3)}, not the standby")
+    killed_at = time.time()
+    system.primary.child.send_signal(signal.SIGKILL)
+    system.primary.child.process.wait()
+    lost = platform.wait_for("liveliness", killed_at, system.timeout, "the platform's liveliness report",
+                             match=lambda record: record["topic"] == "PlatformControl" and record["lost"])
+    loss_reported = (lost["t"] - killed_at) * 1000
+    down = platform.wait_for("owner", killed_at, system.timeout, "the platform's owner change to the standby",
+                             match=owner_change("PlatformControl"))
+    if down["instance"] != "collision_avoidance-2":
+        raise RuntimeError(f"failover {number}: the platform followed {down['instance']}, not the standby")
     hmi_gap: float | None = None
     try:
-        hmi_gap = float(hmi.wait_for(GAP, hmi_mark, 5.0, "the HMI's owner change").group(4))
+        hmi_gap = float(hmi.wait_for("owner", killed_at, 5.0, "the HMI's owner change",
+                                     match=owner_change("AlertTopic"))["gap_ms"])
     except TimeoutError:
         pass  # no alert written by the standby within 5 s (no alert active): nothing to measure at the HMI
-    platform_mark, hmi_mark = len(platform.lines), len(hmi.lines)
+    restarted_at = time.time()
     system.primary = system.instance("collision_avoidance")
-    system.primary.wait_for(re.compile(r"joined: "), 0, system.timeout, "the restarted primary's join")
-    up = platform.wait_for(GAP, platform_mark, system.timeout, "the platform's owner change to the primary")
-    if up.group(3) != "collision_avoidance":
-        raise RuntimeError(f"failover {number}: after the restart the platform followed {up.group(3)}")
-    return Failover(float(down.group(4)), hmi_gap, float(up.group(4)), loss_reported)
+    system.primary.wait_for("joined", 0, system.timeout, "the restarted primary's join")
+    up = platform.wait_for("owner", restarted_at, system.timeout, "the platform's owner change to the primary",
+                           match=owner_change("PlatformControl"))
+    if up["instance"] != "collision_avoidance":
+        raise RuntimeError(f"failover {number}: after the restart the platform followed {up['instance']}")
+    return Failover(float(down["gap_ms"]), hmi_gap, float(up["gap_ms"]), loss_reported)
 
 
 def check(system: System) -> list[str]:
     """What went wrong across the run: command numbers going back, alert states repeated or stale."""
     problems: list[str] = []
-    numbers = [int(match.group(1)) for match in system.platform.matches(COMMAND)]
+    numbers = [int(record["sample_id"]) for record in system.platform.records("command")]
     back = [(a, b) for a, b in zip(numbers, numbers[1:]) if b <= a]
     if back:
         problems.append(f"the platform's command numbers went back {len(back)} time(s): {back[:5]}")
-    shown = [(stamp, match.group(1)) for stamp, line in system.hmi.lines if (match := SHOWN.search(line))]
+    shown = [(float(record["t"]), record["state"]) for record in system.hmi.records("shown")]
     repeated = sum(1 for (_, a), (_, b) in zip(shown, shown[1:]) if a == b)
     if repeated:
         problems.append(f"the HMI showed an alert state twice in a row {repeated} time(s)")
-    made = [(stamp, "DRIVER ALERT" if match.group(1) == "ALERT" else "all clear")
-            for process in system.processes if process.name.startswith("collision_avoidance")
-            for stamp, line in process.lines if (match := MADE.search(line))]
+    made = [(float(record["t"]), record["state"]) for program in system.processes
+            if program.name.startswith("collision_avoidance") for record in program.records("alert")]
     stale = [(stamp, state) for stamp, state in shown
              if not any(state == made_state and stamp - STALE_WINDOW_S <= made_at <= stamp + 0.05
                         for made_at, made_state in made)]
@@ -238,10 +221,12 @@ def check(system: System) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="bench-failover-") as folder:
-        system = System(args.domain, write_scene(Path(folder) / "scene.csv"), args.timeout)
+        system = System(args.domain, write_scene(Path(folder) / "scene.csv"), args.timeout, Path(folder))
         runs: list[Failover] = []
         try:
-            system.platform.wait_for(PRIMARY_OWNS, 0, args.timeout, "the primary's first command at the platform")
+            system.platform.wait_for("owner", 0, args.timeout, "the primary's first command at the platform",
+                                     match=lambda record: record["topic"] == "PlatformControl"
+                                     and record["instance"] == "collision_avoidance")
             for number in range(1, args.failovers + 1):
                 measured = failover(system, number)
                 runs.append(measured)
@@ -250,12 +235,12 @@ def run(args: argparse.Namespace) -> int:
                       f"the kill; platform gap {measured.platform_gap:.0f} ms, HMI gap {hmi_gap}; primary back, took "
                       f"over {round(measured.takeover_gap)} ms after the standby's last command", flush=True)
         except (TimeoutError, RuntimeError) as error:
-            print(f"bench-failover: {error}", file=sys.stderr)
+            print(f"{PROG}: {error}", file=sys.stderr)
             system.stop(args.log_dir)
             return 1
         system.stop(args.log_dir)
-    problems = check(system)
-    stale_ignored = len(system.platform.matches(re.compile(r"stale command")))
+        problems = check(system)
+        stale_ignored = len(system.platform.records("stale_command"))
     print(f"\ncollision_avoidance failover, redundant system on loopback, liveliness lease {LEASE_MS} ms, "
           f"{os.cpu_count()} CPU(s)")
     platform_gaps = [run.platform_gap for run in runs]
@@ -272,16 +257,15 @@ def run(args: argparse.Namespace) -> int:
     return 1 if problems else 0
 
 
-def main() -> int:
-    parser = ArgumentParser(prog="scripts/bench-failover", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int:
+    parser = ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--failovers", type=int, default=20, help="failovers to measure (default 20)")
-    parser.add_argument("--domain", type=int, default=87, help="DDS domain id (default 87)")
+    add_domain_option(parser, 87, "DDS domain id")
     parser.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for each step (default 60)")
-    parser.add_argument("--log-dir", type=Path, default=None, help="write every process's output there")
-    args = parser.parse_args()
+    add_log_dir_option(parser, help="write every process's output (.log) and status records (.jsonl) there")
+    args = parser.parse_args(argv)
     if args.failovers < 1:
-        print(f"bench-failover: --failovers {args.failovers}: expected 1 or more", file=sys.stderr)
+        print(f"{PROG}: --failovers {args.failovers}: expected 1 or more", file=sys.stderr)
         return 2
     return run(args)
 

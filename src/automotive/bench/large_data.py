@@ -1,9 +1,8 @@
-#!/usr/bin/env python3
 """Large samples on one host: our camera pair (two Python processes) over UDP and over shared memory, against
 Cyclone's C tool ddsperf, side by side.
 
 For each sample size (64 KiB, 1 MiB, 4 MiB by default) and round, runs our camera_pub + camera_sub over DDS
-(loopback UDP), the same pair over shared memory (config.transport=shm: iceoryx2, automotive/shm.py), and
+(loopback UDP), the same pair over shared memory (config.transport=shm: iceoryx2, automotive.wire.shm), and
 `ddsperf pub size S` + `ddsperf sub`, all reliable and keep-all, as fast as flow control allows, for the same
 duration, in an order that alternates between rounds, so that machine noise hits all alike. The DDS runs use the
 same Cyclone configuration (CYCLONEDDS_URI): loopback only, a private domain, and the large-data settings below
@@ -11,9 +10,10 @@ unless --cyclone-defaults.
 
 Measured the same way for all: throughput over the steady state (from the first once-a-second report after data
 started to the last one before the publisher is stopped, counted by the subscriber); CPU of each process over that
-same window, from /proc/<pid>/stat (1.00 = one core busy). Latency (receive time minus the sample's source stamp)
-comes from camera_sub; ddsperf's pub/sub mode does not measure it. Lost samples are our gaps and ddsperf's "lost";
-camera_sub compares every byte of every frame with the publisher's pattern (mismatches).
+same window, from psutil (1.00 = one core busy). Latency (receive time minus the sample's source stamp) comes from
+camera_sub (its --stats records: one a second and the totals); ddsperf's pub/sub mode does not measure it. Lost samples
+are our gaps and ddsperf's "lost"; camera_sub compares every byte of every frame with the publisher's pattern
+(mismatches).
 
 Then the shared-memory pair runs at 30 frames/s (4 MiB frames), for the latency of a camera-like stream.
 
@@ -25,31 +25,27 @@ medians of the rounds) and `shm_p99_ms_30fps=<p99 latency of the shared-memory p
 from __future__ import annotations
 
 import os
-import queue
 import re
 import shutil
 import signal
 import statistics
 import subprocess
 import sys
-import threading
+import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+from automotive.bus import stats
+from automotive.bus.cli import ArgumentParser, add_domain_option
+from automotive.bus.network import NetworkConfig
+from automotive.tools.children import Child, program_command
+
+PROG = "automotive-bench-large-data"
 SIZES = {"64KiB": 64 * 1024, "1MiB": 1024 * 1024, "4MiB": 4 * 1024 * 1024}
-TICKS = os.sysconf("SC_CLK_TCK")
 START_TIMEOUT = 90.0  # starting Python and Cyclone on a busy 2-core machine can take long
 SHM_PREFIX = f"benchlarge{os.getpid()}_"  # our iceoryx2 files only; removed at the end
 TOOLS = ("ours", "ours-shm", "ddsperf")
-sys.path.insert(0, str(ROOT))
-
-from automotive.bus.cli import ArgumentParser, run_in_project_venv  # noqa: E402
-
-run_in_project_venv(__file__, sys.argv[1:])  # Cyclone DDS and numpy are in the project's .venv
-
-from automotive.bus.network import NetworkConfig  # noqa: E402
 
 
 # Loopback only, no multicast; every participant on this host is found through 127.0.0.1.
@@ -58,64 +54,27 @@ def cyclone_uri(defaults: bool, buffer: str, fragment: int) -> str:
     return NetworkConfig(large_data=not defaults, fragment_size=fragment, socket_buffer=buffer).cyclone_xml()
 
 
-class Proc:
-    """A child process whose output lines are timestamped (monotonic) as they arrive."""
+class RunFailed(RuntimeError):
+    """A run that did not get to its measurement: the reason is noted in its result."""
 
-    def __init__(self, name: str, command: list[str], env: dict[str, str]):
-        self.name = name
-        self.popen = subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                      text=True, bufsize=1)
-        self.lines: list[tuple[float, str]] = []
-        self._queue: queue.Queue[str | None] = queue.Queue()
-        self._thread = threading.Thread(target=self._read, daemon=True)
-        self._thread.start()
 
-    def _read(self) -> None:
-        assert self.popen.stdout is not None
-        for line in self.popen.stdout:
-            self.lines.append((time.monotonic(), line.rstrip("\n")))
-            self._queue.put(line)
-        self._queue.put(None)
+def _wait_line(proc: Child, pattern: str, timeout: float) -> None:
+    try:
+        proc.wait_for(pattern, timeout)
+    except AssertionError as error:
+        raise RunFailed(str(error)) from None
 
-    def wait_for(self, pattern: str, timeout: float) -> str:
-        regex = re.compile(pattern)
-        deadline = time.monotonic() + timeout
-        seen = 0
-        while True:
-            for _, line in self.lines[seen:]:
-                if regex.search(line):
-                    return line
-            seen = len(self.lines)
-            remaining = deadline - time.monotonic()
-            if remaining <= 0 or self.popen.poll() is not None and self._queue.empty():
-                tail = "\n".join(line for _, line in self.lines[-15:])
-                raise RuntimeError(f"{self.name}: no /{pattern}/ within {timeout:.0f} s; last output:\n{tail}")
-            try:
-                self._queue.get(timeout=min(remaining, 0.5))
-            except queue.Empty:
-                pass
 
-    def cpu_seconds(self) -> float:
-        """User + system CPU of every thread so far (/proc/<pid>/stat fields 14 and 15)."""
-        try:
-            fields = Path(f"/proc/{self.popen.pid}/stat").read_text().rsplit(")", 1)[1].split()
-        except FileNotFoundError:
-            return float("nan")
-        return (int(fields[11]) + int(fields[12])) / TICKS
-
-    def stop(self, sig: int = signal.SIGINT, timeout: float = 30.0) -> int:
-        if self.popen.poll() is None:
-            self.popen.send_signal(sig)
-        try:
-            self.popen.wait(timeout=timeout)
-        except subprocess.TimeoutExpired:
-            self.popen.kill()
-            self.popen.wait()
-        self._thread.join(timeout=5)
-        return self.popen.returncode
-
-    def output(self) -> str:
-        return "\n".join(line for _, line in self.lines)
+def _wait_record(proc: Child, path: Path, kind: str, timeout: float) -> None:
+    """Wait until the stats file of ``proc`` holds a record of ``kind``."""
+    deadline = time.monotonic() + timeout
+    while not any(True for _ in stats.read(path, kind)):
+        if proc.poll() is not None:
+            raise RunFailed(f"{proc.name} ended (exit {proc.poll()}) before a '{kind}' record; last output:\n"
+                            + "\n".join(proc.lines[-15:]))
+        if time.monotonic() > deadline:
+            raise RunFailed(f"{proc.name}: no '{kind}' record within {timeout:.0f} s")
+        time.sleep(0.1)  # polling a file another process appends to
 
 
 @dataclass
@@ -142,7 +101,7 @@ def steady_rate(points: list[tuple[float, int]], start: float, end: float) -> fl
     return (inside[-1][1] - inside[0][1]) / (inside[-1][0] - inside[0][0])
 
 
-def measure_window(pub: Proc, sub: Proc, duration: float) -> tuple[float, float, float, float]:
+def measure_window(pub: Child, sub: Child, duration: float) -> tuple[float, float, float, float]:
     """Sleep through the measured window (the benchmark's fixed duration); return it and each process's CPU use."""
     cpu_pub, cpu_sub, start = pub.cpu_seconds(), sub.cpu_seconds(), time.monotonic()
     time.sleep(duration)
@@ -152,7 +111,8 @@ def measure_window(pub: Proc, sub: Proc, duration: float) -> tuple[float, float,
 
 
 def run_ours(size_name: str, duration: float, domain: int, env: dict[str, str], qos_file: Path | None,
-             shared_memory: bool = False, interval_ms: float = 0, launcher: list[str] | None = None) -> Result:
+             workdir: Path, shared_memory: bool = False, interval_ms: float = 0,
+             launcher: list[str] | None = None) -> Result:
     size = SIZES[size_name]
     result = Result("ours-shm" if shared_memory else "ours", size)
     common = ["--domain", str(domain), "-D", f"config.imageSize={size_name}"]
@@ -160,63 +120,50 @@ def run_ours(size_name: str, duration: float, domain: int, env: dict[str, str], 
         common += ["-D", f"qos.File={qos_file.resolve()}"]
     if shared_memory:
         common += ["-D", "config.transport=shm", "-D", f"config.shmPrefix={SHM_PREFIX}"]
-    python = [*(launcher or []), sys.executable]
-    sub = Proc("camera_sub", [*python, "-m", "automotive.apps.camera_sub", *common, "--exit-with-publisher"], env)
-    pub: Proc | None = None
+    figures = Path(tempfile.mkstemp(prefix="camera_sub-", suffix=".jsonl", dir=workdir)[1])
+    sub = Child("camera_sub", program_command("camera_sub", *common, "--exit-with-publisher", "--stats",
+                                              str(figures), python=launcher or ()), env=env)
+    pub: Child | None = None
     try:
-        sub.wait_for("viewing", START_TIMEOUT)
-        pub = Proc("camera_pub", [*python, "-m", "automotive.apps.camera_pub", *common,
-                                  "-D", f"config.pubInterval={interval_ms:g}"], env)
-        sub.wait_for(r"samples=\d+ size=", START_TIMEOUT)  # the first once-a-second report: data flows
+        _wait_line(sub, "viewing", START_TIMEOUT)
+        pub = Child("camera_pub", program_command("camera_pub", *common, "-D", f"config.pubInterval={interval_ms:g}",
+                                                  python=launcher or ()), env=env)
+        _wait_record(sub, figures, "window", START_TIMEOUT)  # the first once-a-second report: data flows
         start, end, result.cpu_pub, result.cpu_sub = measure_window(pub, sub, duration)
-        pub.stop(signal.SIGINT)
+        pub.stop(signal.SIGINT, timeout=30)
         _wait(sub, 60)  # camera_sub stops by itself once the publisher has left
-        sub.stop(signal.SIGINT)
-    except RuntimeError as error:
+        sub.stop(signal.SIGINT, timeout=30)
+    except RunFailed as error:
         result.note = str(error).splitlines()[0]
         for proc in (pub, sub):
             if proc is not None:
                 proc.stop(signal.SIGTERM)
         return result
+    # The windows' records carry the wall clock: measure_window's monotonic window, shifted onto it.
+    shift = time.time() - time.monotonic()
     points, total = [], 0
-    for arrived, line in sub.lines:
-        match = re.search(r"camera_sub: samples=(\d+) size=", line)
-        if match:
-            total += int(match.group(1))
-            points.append((arrived, total))
+    for record in stats.read(figures, "window"):
+        total += int(record["samples"])
+        points.append((float(record["t"]) - shift, total))
     result.samples_per_s = steady_rate(points, start, end)
     result.mb_per_s = result.samples_per_s * size / 1e6
-    totals = next((line for _, line in sub.lines if "totals:" in line), "")
-    values = dict(re.findall(r"([\w/]+)=(\S+)", totals))
-    result.p50_ms = _float(values.get("p50"))
-    result.p99_ms = _float(values.get("p99"))
-    result.lost = _int(values.get("gaps"))
-    result.mismatches = _int(values.get("mismatches"))
-    if not totals:
-        result.note = "camera_sub printed no totals"
+    totals = next(stats.read(figures, "totals"), None)
+    if totals is None:
+        result.note = "camera_sub wrote no totals"
+        return result
+    result.p50_ms = totals["latency_ms"]["p50"]
+    result.p99_ms = totals["latency_ms"]["p99"]
+    result.lost = int(totals["gaps"])
+    result.mismatches = int(totals["mismatches"])
     return result
 
 
-def _wait(proc: Proc, timeout: float) -> bool:
+def _wait(proc: Child, timeout: float) -> bool:
     try:
-        proc.popen.wait(timeout=timeout)
+        proc.process.wait(timeout=timeout)
         return True
     except subprocess.TimeoutExpired:
         return False
-
-
-def _float(text: str | None) -> float | None:
-    try:
-        return float(text) if text is not None else None
-    except ValueError:
-        return None
-
-
-def _int(text: str | None) -> int | None:
-    try:
-        return int(text) if text is not None else None
-    except ValueError:
-        return None
 
 
 DDSPERF_LINE = re.compile(r"size (\d+) total (\d+) lost (\d+) delta (\d+)")
@@ -228,25 +175,26 @@ def run_ddsperf(size_name: str, duration: float, domain: int, env: dict[str, str
     # stdbuf: ddsperf's stdio is block-buffered on a pipe; each line must arrive when it is printed.
     prefix = ["stdbuf", "-oL"] if shutil.which("stdbuf") else []
     common = [ddsperf, "-i", str(domain), "-k", "all"]
-    sub = Proc("ddsperf sub", [*prefix, *common, "sub"], env)
-    pub: Proc | None = None
+    sub = Child("ddsperf sub", [*prefix, *common, "sub"], env=env)
+    pub: Child | None = None
     try:
-        sub.wait_for("participant .*: new", START_TIMEOUT)
-        pub = Proc("ddsperf pub", [*prefix, *common, "pub", "size", str(size)], env)
-        sub.wait_for(r"size \d+ total [1-9]", START_TIMEOUT)
+        _wait_line(sub, "participant .*: new", START_TIMEOUT)
+        pub = Child("ddsperf pub", [*prefix, *common, "pub", "size", str(size)], env=env)
+        _wait_line(sub, r"size \d+ total [1-9]", START_TIMEOUT)
         start, end, result.cpu_pub, result.cpu_sub = measure_window(pub, sub, duration)
-        pub.stop(signal.SIGINT)
-        sub.wait_for(r"participant .*: gone", 30)
-        sub.stop(signal.SIGINT)
-    except RuntimeError as error:
+        pub.stop(signal.SIGINT, timeout=30)
+        _wait_line(sub, r"participant .*: gone", 30)
+        sub.stop(signal.SIGINT, timeout=30)
+    except RunFailed as error:
         result.note = str(error).splitlines()[0]
         for proc in (pub, sub):
             if proc is not None:
                 proc.stop(signal.SIGTERM)
         return result
     points, lost = [], 0
-    for arrived, line in sub.lines:
-        match = DDSPERF_LINE.search(line)
+    for line in list(sub.records):
+        arrived = line.time
+        match = DDSPERF_LINE.search(line.text)
         if match and int(match.group(1)) >= size:
             points.append((arrived, int(match.group(2))))
             lost = int(match.group(3))
@@ -267,7 +215,7 @@ def ensure_ddsperf() -> str:
         subprocess.run(install, check=True)
     found = shutil.which("ddsperf")
     if not found:
-        sys.exit("bench-large-data: cyclonedds-tools installed, but no ddsperf on PATH")
+        sys.exit(f"{PROG}: cyclonedds-tools installed, but no ddsperf on PATH")
     return found
 
 
@@ -343,11 +291,11 @@ def write_chart(path: Path, results: list[Result], sizes: list[str], title: str)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = ArgumentParser(prog=PROG, description=(__doc__ or "").split("\n\n")[0])
     parser.add_argument("--sizes", default="64KiB,1MiB,4MiB", help=f"comma-separated, of {', '.join(SIZES)}")
     parser.add_argument("--duration", type=float, default=5.0, help="measured seconds per run (default 5)")
     parser.add_argument("--rounds", type=int, default=1, help="runs of each tool per size; the median is shown")
-    parser.add_argument("--domain", type=int, default=75, help="DDS domain id of the runs (default 75)")
+    add_domain_option(parser, 75, "DDS domain id of the runs")
     parser.add_argument("--chart", type=Path, default=Path("bench-large-data.png"), help="PNG chart to write")
     parser.add_argument("--socket-buffer", default="4MiB",
                         help="largest socket buffers to ask for (the kernel caps them at net.core.rmem_max)")
@@ -368,8 +316,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"sizes must be among {', '.join(SIZES)}; duration and rounds positive; "
                      "fragment size 1024..64000")
     ddsperf = ensure_ddsperf()
-    env = dict(os.environ, CYCLONEDDS_URI=cyclone_uri(args.cyclone_defaults, args.socket_buffer, args.fragment_size),
-               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), PYTHONUNBUFFERED="1")
+    env = dict(os.environ, CYCLONEDDS_URI=cyclone_uri(args.cyclone_defaults, args.socket_buffer, args.fragment_size))
+    workdir = Path(tempfile.mkdtemp(prefix="bench-large-data-"))
     config = ("Cyclone defaults" if args.cyclone_defaults
               else f"{args.fragment_size}-byte fragments, socket buffers <= {args.socket_buffer}")
     print(f"loopback, reliable keep-all, {args.duration:g} s per run, {args.rounds} round(s), {config}", flush=True)
@@ -381,7 +329,7 @@ def main(argv: list[str] | None = None) -> int:
                 if tool == "ddsperf":
                     result = run_ddsperf(name, args.duration, args.domain, env, ddsperf)
                 else:
-                    result = run_ours(name, args.duration, args.domain, env, args.qos_file, tool == "ours-shm")
+                    result = run_ours(name, args.duration, args.domain, env, args.qos_file, workdir, tool == "ours-shm")
                 results.append(result)
                 print(f"  round {round_number} {name:>5} {tool:<8} {fmt(result.mb_per_s):>8} MB/s "
                       f"CPU pub {fmt(result.cpu_pub, 2)} sub {fmt(result.cpu_sub, 2)} "
@@ -390,9 +338,10 @@ def main(argv: list[str] | None = None) -> int:
 
     scheduling = "SCHED_FIFO 10" if args.realtime else "default scheduling"
     print(f"  shared memory, 4MiB frames at 30 frames/s for {args.latency_seconds:g} s, {scheduling}", flush=True)
-    camera_rate = run_ours("4MiB", args.latency_seconds, args.domain, env, args.qos_file, True, 1000 / 30,
+    camera_rate = run_ours("4MiB", args.latency_seconds, args.domain, env, args.qos_file, workdir, True, 1000 / 30,
                            ["chrt", "--fifo", "10"] if args.realtime else None)
     remove_shared_memory_files()
+    shutil.rmtree(workdir, ignore_errors=True)
     rows, ratios = summarise(results, sizes)
     print()
     print("\n".join(rows))

@@ -1,4 +1,3 @@
-#!/usr/bin/env python3
 """Time the simulated LiDAR at the default scan size and at 4x and 16x the point count.
 
 Per size it prints the median over many frames, in milliseconds, of
@@ -32,27 +31,16 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from automotive import config, cyclone
+from automotive.bus.cli import ArgumentParser, add_domain_option
+from automotive.bus.network import NetworkConfig
+from automotive.bus.qos import QosProfiles
+from automotive.sim.scene import LidarScene, ScanGrid
+from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_
 
-from automotive.bus.cli import ArgumentParser, run_in_project_venv  # noqa: E402
-
-run_in_project_venv(__file__, sys.argv[1:])  # Cyclone DDS and numpy are in the project's .venv
-
-from automotive.bus.network import NetworkConfig  # noqa: E402
-
-# Before any participant exists: all traffic of this benchmark stays on loopback.
-os.environ["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()
-
-from automotive.bus.qos import QosProfiles  # noqa: E402
-from automotive.cyclone import fastpath  # noqa: E402
-from automotive.sim.scene import LidarScene, ScanGrid  # noqa: E402
-from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_  # noqa: E402
-
+PROG = "automotive-bench-lidar"
 SIZES = (("1x", 1, 1), ("4x", 2, 2), ("16x", 4, 4))  # (label, azimuth factor, polar factor)
-QOS_FILE = ROOT / "qos" / "automotive_qos.xml"
 LIBRARY = "AutomotiveLibrary"
 RATE_HZ = 20
 
@@ -81,7 +69,7 @@ def make_writer(domain_id: int, profile: str, timeout_s: float = 10.0
 
     writer_qos = reader_qos = None
     if profile != "none":
-        profiles = QosProfiles(QOS_FILE)
+        profiles = QosProfiles(config.qos_file())
         writer_qos, reader_qos = profiles.writer_qos(LIBRARY, profile), profiles.reader_qos(LIBRARY, profile)
     # Two participants, so that the samples go through the loopback network rather than in-process delivery.
     writer_side, reader_side = DomainParticipant(domain_id), DomainParticipant(domain_id)
@@ -90,7 +78,7 @@ def make_writer(domain_id: int, profile: str, timeout_s: float = 10.0
     deadline = time.monotonic() + timeout_s
     while not writer.get_matched_subscriptions():
         if time.monotonic() > deadline:
-            raise SystemExit(f"bench-lidar: no reader matched the writer on domain {domain_id} within {timeout_s} s")
+            raise SystemExit(f"{PROG}: no reader matched the writer on domain {domain_id} within {timeout_s} s")
         time.sleep(0.01)
 
     def write(msg: PointCloud2_) -> None:
@@ -113,29 +101,37 @@ def growth(rows: list[tuple[str, int, dict[str, float]]]) -> list[str]:
     return lines
 
 
-def main() -> int:
-    parser = ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int:
+    parser = ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=200, help="frames per measurement at 1x (fewer when larger)")
     parser.add_argument("--write", action="store_true", help="also time DataWriter.write over loopback")
-    parser.add_argument("--domain", type=int, default=50, help="domain id for --write (default 50)")
+    add_domain_option(parser, 50, "domain id for --write")
     parser.add_argument("--profile", default="Lidar",
                         help="QoS profile of the writer and reader for --write (default Lidar; none: Cyclone's "
                              "defaults)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     if args.frames < 1:
-        print(f"bench-lidar: --frames {args.frames}: expected at least 1", file=sys.stderr)
+        print(f"{PROG}: --frames {args.frames}: expected at least 1", file=sys.stderr)
         return 2
     if not 0 <= args.domain <= 232:
-        print(f"bench-lidar: --domain {args.domain}: expected a domain id 0..232", file=sys.stderr)
+        print(f"{PROG}: --domain {args.domain}: expected a domain id 0..232", file=sys.stderr)
         return 2
+
+    # Before any participant exists: all traffic of this benchmark stays on loopback.
+    os.environ["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()
+    fast = cyclone.start()
+    if args.write and not fast:
+        print(f"{PROG}: --write compares the octet fast path with Cyclone's own serializer, and the fast path is off "
+              f"({cyclone.why_off()})", file=sys.stderr)
+        return 2
+    from automotive.cyclone import fastpath
 
     write = drain = None
     if args.write:
-        fastpath.enable()
         try:
             write, drain = make_writer(args.domain, args.profile)
         except Exception as error:  # an unknown profile name, an unreadable QoS file
-            print(f"bench-lidar: --profile {args.profile}: {error}", file=sys.stderr)
+            print(f"{PROG}: --profile {args.profile}: {error}", file=sys.stderr)
             return 2
 
     print(f"times: median ms a frame; write: {'QoS profile ' + args.profile if args.write else 'not timed'}")
@@ -194,6 +190,7 @@ def main() -> int:
         print(f"  {line}")
     if not args.write:
         print("write: run with --write to time DataWriter.write on loopback (domain --domain, default 50)")
+    print(f"lidar_frame_ms={rows[0][2]['frame']:.3f}")
     return 0
 
 

@@ -1,19 +1,19 @@
-#!/usr/bin/env python3
 """Sensor fusion against N vision sensors on one host (loopback): discovery time, fusion CPU, objects per fused list.
 
-    scripts/bench-scale                      N = 1, 10, 50
-    scripts/bench-scale --sizes 1,20 --window 10 --domain 85
+    automotive-bench-scale                      N = 1, 10, 50
+    automotive-bench-scale --sizes 1,20 --window 10 --domain 85
 
 For each N: sensor_fusion starts and creates its reader; then N vision processes (python -m automotive.apps.vision,
-config.sensorId 1..N, as `scripts/launch --vision-sensors N` starts them) start at once (or --stagger S seconds apart).
-Measured, from each process's output as it arrives:
-  start       seconds from starting the N processes until every one has created its writer ("vision sensor i:")
-  discovery   milliseconds from the last writer created until sensor fusion's reader has matched all N
-              ("[VisionTopic] reader matched a writer: N writer(s) now"); negative when the match was seen first
-              (the sensor logs its line just after creating its writer, and the pipes race)
+config.sensorId 1..N, as `automotive-launch --vision-sensors N` starts them)
+start at once (or --stagger S seconds apart).
+Measured, from each process's status records (--stats, JSON lines with wall-clock times):
+  start       seconds from starting the N processes until every one has created its writer (its "ready" record)
+  discovery   milliseconds from the last writer created until sensor fusion's reader has matched all N (its
+              "matched" record with count N); negative when the match came first (a sensor records "ready" just
+              after creating its writer)
   ready       seconds from starting the N processes until all N are matched (start + discovery)
 Then over --window seconds of steady running:
-  fusion CPU  sensor_fusion's user+system CPU time over the window, in % of one core
+  fusion CPU  sensor_fusion's user+system CPU time over the window (psutil), in % of one core
   vision CPU  the N vision processes together, in % of one core
   lists/s, samples/list, offered/list (objects the sensors published per list interval), objects/list (mean and
   max, bounded by Sensor::SensorObjectList's 128), full (lists at the bound: objects were cut)
@@ -27,61 +27,38 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
-import signal
+import shutil
 import statistics
-import subprocess
 import sys
-import threading
+import tempfile
 import time
-from dataclasses import dataclass, field
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+from automotive.bus import stats
+from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.network import NetworkConfig
+from automotive.tools.children import Child, program_command, stop_all
+from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE
 
-from automotive.bus.cli import ArgumentParser, run_in_project_venv  # noqa: E402
-
-run_in_project_venv(__file__, sys.argv[1:])  # Cyclone DDS and numpy are in the project's .venv
-
-from automotive.bus.network import NetworkConfig  # noqa: E402
-from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE  # noqa: E402
-
-CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
-LIST_LINE = re.compile(r"published list \d+: (\d+) object\(s\) from (\d+) vision sample\(s\)")
-MATCHED_LINE = re.compile(r"\[VisionTopic\] reader (?:un)?matched a writer: (\d+) writer")
-SAMPLE_LINE = re.compile(r"published sample \d+: (\d+) object\(s\)")
+PROG = "automotive-bench-scale"
 
 
-@dataclass
 class Process:
-    name: str
-    popen: subprocess.Popen[str]
-    lines: list[tuple[float, str]] = field(default_factory=list)
+    """A program of the system with its status records (--stats) in ``workdir``."""
 
-    def start_reading(self) -> None:
-        threading.Thread(target=self._read, daemon=True).start()
+    def __init__(self, name: str, module: str, args: list[str], env: dict[str, str], workdir: Path):
+        self.name = name
+        self.stats = workdir / f"{name}.jsonl"
+        self.child = Child(name, program_command(module, *args, "--stats", str(self.stats)), env=env)
 
-    def _read(self) -> None:
-        assert self.popen.stdout is not None
-        for line in self.popen.stdout:
-            self.lines.append((time.monotonic(), line.rstrip("\n")))
+    def records(self, kind: str, start: float = 0.0, end: float = float("inf")) -> list[dict[str, Any]]:
+        return [record for record in stats.read(self.stats, kind) if start <= record["t"] < end]
 
-    def first(self, pattern: re.Pattern[str]) -> float | None:
-        for stamp, line in list(self.lines):
-            if pattern.search(line):
-                return stamp
-        return None
-
-    def between(self, pattern: re.Pattern[str], start: float, end: float) -> list[re.Match[str]]:
-        return [match for stamp, line in list(self.lines) if start <= stamp < end and (match := pattern.search(line))]
-
-    def cpu_seconds(self) -> float:
-        try:
-            fields = Path(f"/proc/{self.popen.pid}/stat").read_text().rpartition(")")[2].split()
-        except OSError:
-            return 0.0
-        return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS  # utime, stime
+    def first(self, kind: str, match: Callable[[dict[str, Any]], bool] = lambda record: True) -> float | None:
+        """The time of the first record of ``kind`` that ``match`` accepts."""
+        return next((float(record["t"]) for record in self.records(kind) if match(record)), None)
 
 
 def udp_receive_buffer_drops() -> int:
@@ -90,93 +67,83 @@ def udp_receive_buffer_drops() -> int:
     return int(lines[1][lines[0].index("RcvbufErrors")]) if len(lines) >= 2 else 0
 
 
-def spawn(name: str, module: str, args: list[str], env: dict[str, str]) -> Process:
-    popen = subprocess.Popen([sys.executable, "-m", f"apps.{module}", *args], cwd=ROOT, env=env, text=True,
-                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
-    process = Process(name, popen)
-    process.start_reading()
-    return process
-
-
-def wait_until(condition: object, timeout: float, what: str) -> float:
-    """Poll ``condition`` (a callable) until it returns a time stamp; fail after ``timeout`` seconds."""
+def wait_until(condition: Callable[[], float | None], timeout: float, what: str) -> float:
+    """Poll ``condition`` until it returns a time stamp; fail after ``timeout`` seconds."""
     deadline = time.monotonic() + timeout
     while True:
-        result = condition()  # type: ignore[operator]
+        result = condition()
         if result is not None:
             return float(result)
         if time.monotonic() > deadline:
             raise TimeoutError(f"timed out after {timeout:g} s waiting for {what}")
-        time.sleep(0.05)
+        time.sleep(0.05)  # polling files the other processes append to
 
 
 def stop(processes: list[Process], log_dir: Path | None) -> None:
-    for process in processes:
-        if process.popen.poll() is None:
-            process.popen.send_signal(signal.SIGTERM)
-    for process in processes:
-        try:
-            process.popen.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            process.popen.kill()
-            process.popen.wait()
+    stop_all([process.child for process in processes], timeout=15)
     if log_dir is not None:
         log_dir.mkdir(parents=True, exist_ok=True)
         for process in processes:
-            (log_dir / f"{process.name}.log").write_text("".join(f"{stamp:.3f} {line}\n"
-                                                                 for stamp, line in process.lines))
+            (log_dir / f"{process.name}.log").write_text("".join(f"{line.time:.3f} {line.text}\n"
+                                                                 for line in process.child.records))
+            if process.stats.is_file():
+                shutil.copyfile(process.stats, log_dir / f"{process.name}.jsonl")
 
 
 def run_one(n: int, domain: int, window: float, env: dict[str, str], timeout: float,
             log_dir: Path | None, stagger: float) -> dict[str, float]:
     processes: list[Process] = []
     drops_before = udp_receive_buffer_drops()
+    workdir = Path(tempfile.mkdtemp(prefix=f"bench-scale-n{n}-"))
     try:
-        fusion = spawn("sensor_fusion", "sensor_fusion", ["--domain", str(domain)], env)
+        fusion = Process("sensor_fusion", "sensor_fusion", ["--domain", str(domain)], env, workdir)
         processes.append(fusion)
-        wait_until(lambda: fusion.first(re.compile(r"sensor fusion: .* mode")), timeout, "sensor fusion's reader")
-        started = time.monotonic()
+        wait_until(lambda: fusion.first("ready"), timeout, "sensor fusion's reader")
+        started = time.time()
         visions: list[Process] = []
         for i in range(1, n + 1):
             if i > 1 and stagger > 0:
                 time.sleep(stagger)  # spreading the start-up load (--stagger), not synchronisation
-            visions.append(spawn(f"vision-{i}", "vision", ["--domain", str(domain), "-D", f"config.sensorId={i}"],
-                                 env))
+            visions.append(Process(f"vision-{i}", "vision", ["--domain", str(domain), "-D", f"config.sensorId={i}"],
+                                   env, workdir))
             processes.append(visions[-1])
-        ready_pattern = re.compile(r"vision sensor \d+: ")
 
         def all_ready() -> float | None:
-            stamps = [vision.first(ready_pattern) for vision in visions]
             for vision in visions:
-                if vision.popen.poll() is not None:
-                    raise RuntimeError(f"{vision.name} ended: {vision.lines[-3:]}")
+                if vision.child.poll() is not None:
+                    raise RuntimeError(f"{vision.name} ended: {vision.child.lines[-3:]}")
+            stamps = [vision.first("ready") for vision in visions]
             return None if None in stamps else max(s for s in stamps if s is not None)
+
+        def matched_all() -> float | None:
+            return fusion.first("matched", lambda record: record["topic"] == "VisionTopic"
+                                and record["endpoint"] == "reader" and record["count"] >= n)
 
         last_ready = wait_until(all_ready, timeout, f"{n} vision writers")
         try:
-            matched = wait_until(lambda: fusion.first(re.compile(rf"\[VisionTopic\] reader matched a writer: {n} ")),
-                                 timeout, f"sensor fusion matching {n} writers")
+            matched = wait_until(matched_all, timeout, f"sensor fusion matching {n} writers")
         except TimeoutError as error:
-            counts = fusion.between(MATCHED_LINE, 0, float("inf"))
-            best = max((int(match.group(1)) for match in counts), default=0)
-            alive = sum(1 for vision in visions if vision.popen.poll() is None)
+            best = max((int(record["count"]) for record in fusion.records("matched")
+                        if record["topic"] == "VisionTopic"), default=0)
+            alive = sum(1 for vision in visions if vision.child.poll() is None)
             drops = udp_receive_buffer_drops() - drops_before
             raise TimeoutError(f"{error} (it matched at most {best}; {alive} of {n} sensors running; "
                                f"{drops} UDP datagrams dropped on full receive buffers)") from None
         # Steady state: from the first list after everything matched, for `window` seconds.
-        window_start = max(time.monotonic(), matched) + 1.0
-        time.sleep(max(0.0, window_start - time.monotonic()))
-        cpu_fusion_0 = fusion.cpu_seconds()
-        cpu_vision_0 = sum(vision.cpu_seconds() for vision in visions)
+        window_start = max(time.time(), matched) + 1.0
+        time.sleep(max(0.0, window_start - time.time()))
+        cpu_fusion_0 = fusion.child.cpu_seconds()
+        cpu_vision_0 = sum(vision.child.cpu_seconds() for vision in visions)
         time.sleep(window)
-        window_end = time.monotonic()
-        cpu_fusion = fusion.cpu_seconds() - cpu_fusion_0
-        cpu_vision = sum(vision.cpu_seconds() for vision in visions) - cpu_vision_0
-        lists = fusion.between(LIST_LINE, window_start, window_end)
-        objects = [int(match.group(1)) for match in lists]
-        samples = [int(match.group(2)) for match in lists]
-        offered = sum(int(match.group(1)) for vision in visions
-                      for match in vision.between(SAMPLE_LINE, window_start, window_end))
+        window_end = time.time()
+        cpu_fusion = fusion.child.cpu_seconds() - cpu_fusion_0
+        cpu_vision = sum(vision.child.cpu_seconds() for vision in visions) - cpu_vision_0
+        time.sleep(0.5)  # the records of the window's last moments reach their files
+        lists = fusion.records("list", window_start, window_end)
+        objects = [int(record["objects"]) for record in lists]
+        samples = [int(record["samples"]) for record in lists]
+        offered = sum(int(record["objects"]) for vision in visions
+                      for record in vision.records("sample", window_start, window_end))
         return {
             "n": n,
             "start": last_ready - started,
@@ -195,27 +162,27 @@ def run_one(n: int, domain: int, window: float, env: dict[str, str], timeout: fl
         }
     finally:
         stop(processes, log_dir / f"n{n}" if log_dir else None)
+        shutil.rmtree(workdir, ignore_errors=True)
 
 
-def main() -> int:
-    parser = ArgumentParser(prog="scripts/bench-scale", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+def main(argv: list[str] | None = None) -> int:
+    parser = ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--sizes", default="1,10,50", help="numbers of vision sensors (default 1,10,50)")
-    parser.add_argument("--domain", type=int, default=85, help="DDS domain id (default 85)")
+    add_domain_option(parser, 85, "DDS domain id")
     parser.add_argument("--window", type=float, default=5.0, help="seconds of steady running measured (default 5)")
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds allowed for start and discovery")
     parser.add_argument("--stagger", type=float, default=0.0, metavar="S",
                         help="seconds between two vision starts (default 0: all at once)")
-    parser.add_argument("--log-dir", type=Path, default=None,
-                        help="write every process's output there (DIR/nN/NAME.log, monotonic time stamps)")
-    args = parser.parse_args()
+    add_log_dir_option(parser, help="write every process's output there (DIR/nN/NAME.log with monotonic time stamps, "
+                                    "NAME.jsonl: its status records)")
+    args = parser.parse_args(argv)
     try:
         sizes = [int(size) for size in args.sizes.split(",")]
     except ValueError:
-        print(f"bench-scale: --sizes {args.sizes}: expected numbers separated by commas", file=sys.stderr)
+        print(f"{PROG}: --sizes {args.sizes}: expected numbers separated by commas", file=sys.stderr)
         return 2
     if any(size < 1 for size in sizes) or args.window <= 0:
-        print("bench-scale: sizes and --window must be positive", file=sys.stderr)
+        print(f"{PROG}: sizes and --window must be positive", file=sys.stderr)
         return 2
 
     rows = []
@@ -223,13 +190,11 @@ def main() -> int:
         env = dict(os.environ)
         # Loopback only; every participant on the host needs an index: N sensors, fusion, and some room.
         env["CYCLONEDDS_URI"] = NetworkConfig(max_participants=max(100, n + 20)).cyclone_xml()
-        env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        env["PYTHONUNBUFFERED"] = "1"
-        print(f"bench-scale: N = {n} ...", file=sys.stderr, flush=True)
+        print(f"{PROG}: N = {n} ...", file=sys.stderr, flush=True)
         try:
             rows.append(run_one(n, args.domain, args.window, env, args.timeout, args.log_dir, args.stagger))
         except (TimeoutError, RuntimeError) as error:
-            print(f"bench-scale: N = {n}: {error}", file=sys.stderr)
+            print(f"{PROG}: N = {n}: {error}", file=sys.stderr)
             return 1
 
     header = (f"{'N':>4} {'start s':>8} {'discov. ms':>10} {'ready s':>8} {'fusion CPU':>10} {'vision CPU':>10} "
@@ -244,6 +209,7 @@ def main() -> int:
               f"{row['samples_per_list']:>12.1f} {row['offered_per_list']:>12.1f} "
               f"{row['objects_mean']:>7.1f}/{row['objects_max']:<5} {row['full']:>3}/{row['lists']:<3} "
               f"{row['udp_drops']:>9}")
+    print(f"scale_discovery_ms_max={max(row['discovery'] for row in rows):.0f}")
     return 0
 
 

@@ -63,7 +63,7 @@ class OwnerTracker:
                                  self.topic_name, self.owner_name, name, gap_ms)
             if self.stats is not None:
                 self.stats.record("owner", topic=self.topic_name, previous=self.owner_name or None, owner=name,
-                                  gap_ms=gap_ms)
+                                  instance=name.rsplit(" (strength", 1)[0], gap_ms=gap_ms)
             self.owner, self.owner_name = info.publication_handle, name
         self.last_stamp_ns = info.source_timestamp
         return changed
