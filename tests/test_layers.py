@@ -1,0 +1,66 @@
+"""The layer rules import-linter cannot express: only automotive.cyclone touches Cyclone DDS Python's private
+internals (modules whose name starts with an underscore, cyclonedds.internal, and the private attributes the fast
+paths use), and every program is a module with main(argv)."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+from pathlib import Path
+
+import pytest
+
+import automotive
+
+PACKAGE = Path(automotive.__file__).resolve().parent
+CYCLONE = PACKAGE / "cyclone"
+GENERATED = PACKAGE / "types"
+# Private attributes of Cyclone's entities and buffers that the fast paths use (cyclone/serdata.py, fastpath.py).
+PRIVATE_ATTRIBUTES = {"_ref", "_use_version_2", "_bytes", "_clayer"}
+
+
+def private_module(name: str) -> bool:
+    parts = name.split(".")
+    return parts[0] == "cyclonedds" and (name.startswith("cyclonedds.internal")
+                                         or any(part.startswith("_") and part != "__idlc__" for part in parts[1:]))
+
+
+def offences(path: Path) -> list[str]:
+    tree = ast.parse(path.read_text(), str(path))
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            found += [f"line {node.lineno}: import {alias.name}" for alias in node.names if private_module(alias.name)]
+        elif isinstance(node, ast.ImportFrom) and node.module:
+            names = [f"{node.module}.{alias.name}" for alias in node.names]
+            if private_module(node.module) or any(private_module(name) for name in names):
+                found.append(f"line {node.lineno}: from {node.module} import {', '.join(a.name for a in node.names)}")
+        elif isinstance(node, ast.Attribute) and node.attr in PRIVATE_ATTRIBUTES:
+            found.append(f"line {node.lineno}: .{node.attr}")
+    return found
+
+
+SOURCES = sorted(path for path in PACKAGE.rglob("*.py")
+                 if CYCLONE not in path.parents and GENERATED not in path.parents)
+
+
+def test_the_rule_sees_private_imports() -> None:
+    assert private_module("cyclonedds._clayer") and private_module("cyclonedds.idl._builder")
+    assert private_module("cyclonedds.internal") and not private_module("cyclonedds.idl.types")
+    assert len(SOURCES) > 40
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda path: str(path.relative_to(PACKAGE)))
+def test_only_the_cyclone_layer_touches_cyclone_internals(path: Path) -> None:
+    assert offences(path) == [], f"{path.relative_to(PACKAGE)} uses Cyclone internals outside automotive.cyclone"
+
+
+PROGRAMS = sorted(f"automotive.{folder}.{path.stem}" for folder in ("apps", "tools", "bench")
+                  for path in (PACKAGE / folder).glob("*.py")
+                  if path.stem not in ("__init__", "children", "flows", "cloudview"))
+
+
+@pytest.mark.parametrize("module", PROGRAMS)
+def test_every_program_has_main_with_argv(module: str) -> None:
+    main = importlib.import_module(module).main
+    assert "argv" in main.__code__.co_varnames[:main.__code__.co_argcount], module
