@@ -61,7 +61,7 @@ class Window:
             self.latency_max_ns = latency_ns
 
     def latency_ms(self) -> str:
-        if not self.samples:
+        if not self.samples or self.latency_min_ns is None or self.latency_max_ns is None:
             return "-/-/-"
         average = self.latency_sum_ns / self.samples
         return f"{self.latency_min_ns / 1e6:.3f}/{average / 1e6:.3f}/{self.latency_max_ns / 1e6:.3f}"

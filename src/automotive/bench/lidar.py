@@ -119,8 +119,8 @@ def main(argv: list[str] | None = None) -> int:
 
     # Before any participant exists: all traffic of this benchmark stays on loopback.
     os.environ["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()
-    fast = cyclone.start()
-    if args.write and not fast:
+    fast_paths_on = cyclone.start()
+    if args.write and not fast_paths_on:
         print(f"{PROG}: --write compares the octet fast path with Cyclone's own serializer, and the fast path is off "
               f"({cyclone.why_off()})", file=sys.stderr)
         return 2

@@ -70,10 +70,10 @@ class Databus:
         # leaves), the process hangs. Holding them here makes close() the one place they are let go.
         self._endpoints: list[DataWriter[Any] | DataReader[Any]] = []
 
-    def topic(self, name: str, data_type: type[T]) -> Topic[T]:
+    def topic(self, name: str, data_type: type[T]) -> Topic[T]:  # type: ignore[type-var]
         topic = self._topics.get(name)
         if topic is None:
-            topic = Topic(self.participant, name, data_type)
+            topic = Topic(self.participant, name, data_type)  # type: ignore[type-var]  # generated types: unchecked
             self._topics[name] = topic
         elif topic.data_type is not data_type:
             raise ConfigError(f"topic '{name}' is used with two types: {topic.data_type.__name__} "

@@ -66,9 +66,10 @@ def plan_peers(peers: tuple[str, ...]) -> PeerPlan:
     route_source = ""
     for peer in peers:
         try:
-            address = socket.getaddrinfo(peer, None, socket.AF_INET, socket.SOCK_DGRAM)[0][4][0]
+            address = str(socket.getaddrinfo(peer, None, socket.AF_INET, socket.SOCK_DGRAM)[0][4][0])
         except (socket.gaierror, UnicodeError) as error:
-            unusable.append((peer, f"the name does not resolve to an IPv4 address ({error.strerror or error})"))
+            reason = getattr(error, "strerror", None) or error
+            unusable.append((peer, f"the name does not resolve to an IPv4 address ({reason})"))
             continue
         if _is_own_address(address):
             own.append(address)

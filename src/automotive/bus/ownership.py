@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from cyclonedds.core import DDSException
 from cyclonedds.pub import DataWriter
@@ -19,7 +19,12 @@ from cyclonedds.sub import DataReader
 
 from automotive.bus.stats import Stats
 
-T = TypeVar("T")
+
+class _Taken(Protocol):
+    sample_info: Any  # a taken sample's SampleInfo
+
+
+T = TypeVar("T", bound=_Taken)
 
 
 class OwnerTracker:
@@ -38,9 +43,12 @@ class OwnerTracker:
     def describe(self, handle: int) -> str:
         """'<instance name> (strength N)' from the writer's discovery data."""
         try:
-            qos = self.reader.get_matched_publication_data(handle).qos
+            data = self.reader.get_matched_publication_data(handle)
         except DDSException:  # already gone
+            data = None
+        if data is None:
             return f"writer {handle:x}"
+        qos = data.qos
         name = qos[Policy.EntityName].name if Policy.EntityName in qos else f"writer {handle:x}"
         strength = qos[Policy.OwnershipStrength].strength if Policy.OwnershipStrength in qos else 0
         return f"{name} (strength {strength})"

@@ -143,7 +143,7 @@ class Properties:
         """A comma-separated list; empty items are dropped."""
         raw = self._raw(key, default)
         if raw is None:
-            return list(default)  # type: ignore[call-overload]
+            return list(default)  # type: ignore[call-overload, arg-type]
         return [item.strip() for item in raw.split(",") if item.strip()]
 
     def get_path(self, key: str, default: str | object = _REQUIRED) -> Path:

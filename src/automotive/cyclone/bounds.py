@@ -94,7 +94,7 @@ def check(sample: Any, path: str = "") -> None:
     """Raise BoundError if any bounded sequence or string of ``sample`` is over its IDL bound."""
     cls = type(sample)
     prefix = path or type_name(cls)
-    for member in _plan(cls):
+    for member in _plan(cls):  # type: ignore[arg-type]  # a class is hashable
         value = getattr(sample, member.name)
         if member.bound is not None and len(value) > member.bound:
             unit = "characters" if isinstance(value, str) else "elements"

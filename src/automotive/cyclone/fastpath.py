@@ -144,7 +144,7 @@ class OctetSequenceMachine(PlainCdrV2SequenceOfPrimitiveMachine):
         buffer.align(4)
         buffer.write("I", 4, length)
         if length:
-            buffer.write_bytes(block)
+            buffer.write_bytes(block)  # type: ignore[arg-type]  # any bytes-like object: it is sliced in
         self.writes += 1
 
     def deserialize(self, buffer: Buffer, deserialize_kind: DeserializeKind = DeserializeKind.DataSample,
@@ -173,7 +173,7 @@ class OctetArrayMachine(ByteArrayMachine):
         block = _as_block(value, self.label)
         if len(block) != self.size:
             raise OctetValueError(f"{self.label} holds {len(block)} bytes; the array has exactly {self.size}")
-        buffer.write_bytes(block)
+        buffer.write_bytes(block)  # type: ignore[arg-type]  # any bytes-like object: it is sliced in
         self.writes += 1
 
     def deserialize(self, buffer: Buffer, deserialize_kind: DeserializeKind = DeserializeKind.DataSample,
@@ -244,7 +244,8 @@ def _member_slots(machine: Machine) -> Iterator[tuple[str, Callable[[], Machine]
         table = machine.member_machines
     elif isinstance(machine, PLCdrMutableStructMachine):
         for member in machine.mutablemembers:
-            yield member.name, (lambda m=member: m.machine), (lambda new, m=member: setattr(m, "machine", new))
+            yield (member.name, (lambda m=member: m.machine),  # type: ignore[misc]
+                   (lambda new, m=member: setattr(m, "machine", new)))  # type: ignore[misc]
         return
     elif isinstance(machine, (UnionMachine, DelimitedCdrAppendableUnionMachine)):
         table = machine.labels_submachines
@@ -253,7 +254,7 @@ def _member_slots(machine: Machine) -> Iterator[tuple[str, Callable[[], Machine]
     else:
         return
     for name in list(table):
-        yield str(name), (lambda n=name: table[n]), (lambda new, n=name: table.__setitem__(n, new))
+        yield str(name), (lambda n=name: table[n]), (lambda new, n=name: table.__setitem__(n, new))  # type: ignore[misc]
 
 
 def _rewrite_machine(cls: type, machine: Machine, convert: Convert) -> None:
@@ -275,6 +276,7 @@ def _idl_types() -> Iterator[type]:
     seen: set[type] = set()
     while pending:
         cls = pending.pop()
+        sub: type
         for sub in cls.__subclasses__():
             if sub not in seen:
                 seen.add(sub)

@@ -144,7 +144,7 @@ class Lender:
         count = self.takecdr(reader._ref, pointers, limit, infos, ANY_STATE)
         if count < 0:
             raise DDSException(count, f"Occurred while taking serialized samples in {reader!r}")
-        taken = [pointers[index] for index in range(count)]
+        taken = [int(pointers[index] or 0) for index in range(count)]
         lent: list[tuple[int, _IoVec]] = []
 
         def give_back() -> None:

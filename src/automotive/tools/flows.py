@@ -76,7 +76,7 @@ class Flow:
 
     @property
     def schema(self) -> Schema:
-        return schema_of(self.data_type)
+        return schema_of(self.data_type)  # type: ignore[arg-type]  # a class is hashable
 
 
 def type_name(data_type: type[Any]) -> str:

@@ -145,8 +145,8 @@ class Scene:
         while t < end:
             speed = rng.uniform(11, 14)
             start, x0, offset = t, self.ego_x(t) + 110, rng.uniform(-0.2, 0.2)
-            self._add(CAR, CAR_BOX, lambda t, x0=x0, s=start, v=speed: x0 - v * (t - s),
-                      lambda t, o=offset: ONCOMING_LANE + o, alive=(start, start + 12))
+            self._add(CAR, CAR_BOX, lambda t, x0=x0, s=start, v=speed: x0 - v * (t - s),  # type: ignore[misc]
+                      lambda t, o=offset: ONCOMING_LANE + o, alive=(start, start + 12))  # type: ignore[misc]
             t += rng.uniform(3, 9)
 
         # Cyclists in the bike lane, overtaken by the ego away from the episodes
@@ -155,7 +155,7 @@ class Scene:
                 pass_time += 2.0
             speed = rng.uniform(4.5, 6.0)
             x0, offset = self.ego_x(pass_time) - speed * pass_time, rng.uniform(-0.2, 0.2)
-            self._add(BIKE, BIKE_BOX, lambda t, x0=x0, v=speed: x0 + v * t, lambda t, o=offset: BIKE_LANE + o)
+            self._add(BIKE, BIKE_BOX, lambda t, x0=x0, v=speed: x0 + v * t, lambda t, o=offset: BIKE_LANE + o)  # type: ignore[misc]
 
         # Parked cars in the bays on the right, in a few stretches
         x_end = self.ego_x(end) + 100
@@ -163,7 +163,7 @@ class Scene:
         while x < x_end:
             if rng.random() < 0.45:
                 for _ in range(rng.randint(1, 3)):
-                    self._add(CAR, CAR_BOX, lambda t, x=x: x, lambda t: PARKING)
+                    self._add(CAR, CAR_BOX, lambda t, x=x: x, lambda t: PARKING)  # type: ignore[misc]
                     x += rng.uniform(6, 8)
             x += rng.uniform(30, 90)
 
@@ -173,8 +173,8 @@ class Scene:
             side = rng.choice((RIGHT_WALK, LEFT_WALK))
             speed = rng.choice((-1, 1)) * rng.uniform(1.1, 1.5)
             for k in range(1 if rng.random() < 0.8 else 2):  # now and then two walk together
-                self._add(PEDESTRIAN, PEDESTRIAN_BOX, lambda t, x0=x + 0.8 * k, v=speed: x0 + v * t,
-                          lambda t, y=side + 0.7 * k: y)
+                self._add(PEDESTRIAN, PEDESTRIAN_BOX, lambda t, x0=x + 0.8 * k, v=speed: x0 + v * t,  # type: ignore[misc]
+                          lambda t, y=side + 0.7 * k: y)  # type: ignore[misc]
             x += rng.uniform(20, 60)
 
         for i, centre in enumerate(self.episodes):
