@@ -19,6 +19,7 @@ from apprunner import AppProcess, AppRunner, CommandProcess
 from cyclonedds.qos import Policy
 from test_system import scene
 
+from automotive import config
 from automotive.bus.qos import QosProfiles
 
 PRIMARY, BACKUP = 20, 10
@@ -38,7 +39,7 @@ def owner_changed(topic: str, old: str, new: str) -> str:
 
 @pytest.mark.parametrize("default", ["SensorFusion", "CollisionAvoidance", "HMI"])
 def test_redundant_profiles_are_exclusive_companions_of_shared_defaults(default: str) -> None:
-    profiles = QosProfiles(Path(__file__).resolve().parent.parent / "qos" / "automotive_qos.xml")
+    profiles = QosProfiles(config.qos_file())
     library = "AutomotiveLibrary"
     for qos in (profiles.writer_qos(library, default), profiles.reader_qos(library, default)):
         assert Policy.Ownership.Exclusive not in qos  # the default system: shared, as every default reader

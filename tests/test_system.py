@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from automotive import config
 from automotive.types.Common import ClassificationEnum
 
 HEADER = "Timestamp,timeStamp," + ",".join(
@@ -116,7 +117,7 @@ SHORT_QOS = [
 
 @pytest.fixture
 def short_qos(tmp_path: Path) -> Path:
-    text = (Path(__file__).resolve().parent.parent / "qos" / "automotive_qos.xml").read_text()
+    text = config.qos_file().read_text()
     for pattern, replacement in SHORT_QOS:
         text, count = re.subn(pattern, replacement, text)
         assert count > 0, pattern
