@@ -17,6 +17,7 @@ import pytest
 from apprunner import AppRunner, CommandProcess
 
 from automotive import config
+from automotive.tools import children
 
 ROOT = Path(__file__).resolve().parent.parent
 # The console script automotive-launch, as the running interpreter runs it.
@@ -60,13 +61,7 @@ def started_pids(launcher: CommandProcess) -> dict[str, int]:
     return {match.group(1): int(match.group(2)) for line in launcher.lines if (match := STARTED.match(line))}
 
 
-def alive(pid: int) -> bool:
-    """The process exists and is not a zombie."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat.rpartition(")")[2].split()[0] != "Z"
+alive = children.alive  # the process exists and is not a zombie
 
 
 def app_line(name: str, pattern: str) -> str:

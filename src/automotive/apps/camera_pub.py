@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import sys
 import threading
-import time
 from collections.abc import Callable
 from typing import Any
 
 from cyclonedds.core import DDSException
 
 from automotive.bus.app import Application, run
+from automotive.bus.stats import Every
 from automotive.sim.lfsr import FramePattern
 from automotive.wire import shm
 from automotive.wire.camera import (
@@ -91,7 +91,7 @@ def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], i
             interval_s: float) -> None:
     size = writer.codec.size
     written = 0
-    window_start, window_frames = time.monotonic(), 0
+    every_second, window_frames = Every(), 0
     for seqnum in app.periodic(interval_s):
         try:
             write(camera_id, seqnum)
@@ -100,11 +100,11 @@ def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], i
             continue
         written += 1
         window_frames += 1
-        now = time.monotonic()
-        if now - window_start >= 1.0:
-            rate = window_frames / (now - window_start)
+        elapsed = every_second.due()
+        if elapsed is not None:
+            rate = window_frames / elapsed
             app.log.info("published %d frames: %.1f frames/s, %.1f MB/s", written, rate, rate * size / 1e6)
-            window_start, window_frames = now, 0
+            window_frames = 0
 
     acknowledged = writer.writer.wait_for_acks(int(ACK_TIMEOUT_S * 1e9)) if written else True
     app.stats.record("totals", published=written, acknowledged=acknowledged)

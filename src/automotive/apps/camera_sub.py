@@ -24,7 +24,7 @@ from cyclonedds.core import GuardCondition, WaitSet
 
 from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
-from automotive.bus.stats import Stats
+from automotive.bus.stats import Every, Stats
 from automotive.sim.lfsr import FramePattern
 from automotive.wire import shm
 from automotive.wire.camera import (
@@ -74,7 +74,7 @@ class CameraStats:
     size: int
     window: Window = field(default_factory=Window)
     total: Window = field(default_factory=Window)
-    window_start: float = field(default_factory=time.monotonic)
+    every_second: Every = field(default_factory=Every)
     first_receive_ns: int | None = None
     last_receive_ns: int | None = None
     receive_times_ns: list[int] = field(default_factory=list)
@@ -109,9 +109,8 @@ class CameraStats:
 
     def report_window(self, log: Any, force: bool = False, stats: Stats | None = None) -> None:
         """Log the statistics line once a second (or now, with ``force``), if frames arrived."""
-        now = time.monotonic()
-        elapsed = now - self.window_start
-        if elapsed < 1.0 and not force:
+        elapsed = self.every_second.due(force)
+        if elapsed is None:
             return
         window = self.window
         if window.samples:
@@ -123,7 +122,6 @@ class CameraStats:
                      window.samples, self.size, window.latency_ms(), window.bytes / elapsed / 1e6 if elapsed else 0.0,
                      window.mismatches, window.gaps)
         self.window = Window()
-        self.window_start = now
 
     def totals(self) -> dict[str, Any]:
         """The whole run's figures: what totals_line says, as numbers (None where no frame came)."""

@@ -19,6 +19,24 @@ from typing import IO, Any
 from automotive.bus.errors import ConfigError
 
 
+class Every:
+    """A once-every-``seconds`` report (the status lines and records of the programs): :meth:`due` says when."""
+
+    def __init__(self, seconds: float = 1.0):
+        self.seconds = seconds
+        self.start = time.monotonic()
+
+    def due(self, force: bool = False) -> float | None:
+        """The seconds since the last report when the next one is due (or ``force``), and start a new period; else
+        None."""
+        now = time.monotonic()
+        elapsed = now - self.start
+        if elapsed < self.seconds and not force:
+            return None
+        self.start = now
+        return elapsed
+
+
 class Stats:
     """Where a program's status records go; without a file, nowhere (every call costs nothing)."""
 

@@ -176,7 +176,9 @@ _lender: Lender | None = None
 def lender() -> Lender | None:
     """The lender of received buffers, or None (gate closed, or this Cyclone build lacks the C functions)."""
     global _lender
-    if _lender is None and gate.enabled():
+    if not gate.enabled():
+        return None
+    if _lender is None:
         try:
             _lender = Lender()
         except (AttributeError, ImportError, OSError):

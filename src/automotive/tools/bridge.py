@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 
 import foxglove
 from cyclonedds.qos import Policy
@@ -24,6 +23,7 @@ from foxglove.websocket import ChannelView, Client, ServerListener
 
 from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
+from automotive.bus.stats import Every
 from automotive.tools.flows import Flow, channel_metadata, select, system_flows
 from automotive.wire.rawsample import RawReader, SampleKind
 
@@ -74,7 +74,7 @@ def body(app: Application) -> None:
     app.log.info("Foxglove WebSocket server on ws://%s:%d (%d topics, at most %d messages queued per client)",
                  app.args.host, server.port, len(readers), backlog)
     forwarded = {flow.topic: 0 for flow in flows}
-    next_status = time.monotonic() + 1.0
+    every_second = Every()
     try:
         for _ in app.wake_ups(app.waitset(*(raw.reader for _, raw, _ in readers)), timeout_s=0.5):
             for topic, raw, channel in readers:
@@ -83,8 +83,7 @@ def body(app: Application) -> None:
                         channel.log(bytes(sample.data), log_time=receive_ns)
                         forwarded[topic] += 1
                         app.tick()
-            if time.monotonic() >= next_status:
-                next_status = time.monotonic() + 1.0
+            if every_second.due():
                 app.log.info("forwarded %s; %d subscription(s)", status(forwarded), listener.subscriptions)
     finally:
         server.stop()

@@ -31,6 +31,7 @@ from mcap.writer import CompressionType, Writer
 
 from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
+from automotive.bus.stats import Every
 from automotive.tools.flows import Flow, channel_metadata, select, system_flows
 from automotive.wire.rawsample import RawReader, RawSample, SampleKind
 
@@ -202,7 +203,7 @@ def body(app: Application) -> None:
                  chunk_size, ", ".join(flow.topic for flow in flows))
     started = time.monotonic()
     deadline = started + app.args.duration if app.args.duration else None
-    next_status = started + 1.0
+    every_second = Every()
 
     def take_all() -> None:
         for topic, raw in readers:
@@ -214,10 +215,9 @@ def body(app: Application) -> None:
         for _ in app.wake_ups(app.waitset(*(raw.reader for _, raw in readers)), timeout_s=0.2):
             take_all()
             now = time.monotonic()
-            if now >= next_status:
+            if every_second.due():
                 app.log.info("%s", recording.status())
                 app.stats.record("status", **recording.figures())
-                next_status = now + 1.0
             if deadline is not None and now >= deadline:
                 app.stop()
         take_all()  # what arrived since the last wake-up is recorded too

@@ -24,6 +24,7 @@ from mcap.reader import SeekingReader
 
 from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
+from automotive.bus.stats import Every
 from automotive.tools.flows import Flow, select, system_flows
 from automotive.wire.rawsample import RawSample, RawWriter, SampleKind
 
@@ -158,7 +159,7 @@ def replay_once(app: Application, reader: SeekingReader, tracks: dict[int, Track
     topics = sorted({channel.topic for channel in
                      (reader.get_summary().channels[channel_id] for channel_id in tracks)})  # type: ignore[union-attr]
     started = time.monotonic()
-    next_status = started + 1.0
+    every_second = Every()
     for _, channel, message in reader.iter_messages(topics=topics, start_time=begin, end_time=end,
                                                     log_time_order=True):
         track = tracks.get(channel.id)
@@ -173,9 +174,8 @@ def replay_once(app: Application, reader: SeekingReader, tracks: dict[int, Track
         track.writer.put(RawSample(message.data, track.kind, 0, 0, 0, 0))
         track.written += 1
         app.tick()
-        if time.monotonic() >= next_status:
+        if every_second.due():
             app.log.info("replayed %d samples: %s", sum(t.written for t in tracks.values()), counts(tracks))
-            next_status = time.monotonic() + 1.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
