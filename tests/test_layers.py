@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ast
 import importlib
+import importlib.metadata
 from pathlib import Path
 
 import pytest
@@ -60,7 +61,12 @@ PROGRAMS = sorted(f"automotive.{folder}.{path.stem}" for folder in ("apps", "too
                   if path.stem not in ("__init__", "children", "flows", "cloudview"))
 
 
+SCRIPTS = {entry.name: entry.value for entry in importlib.metadata.distribution("automotive-databus").entry_points
+           if entry.group == "console_scripts"}
+
+
 @pytest.mark.parametrize("module", PROGRAMS)
-def test_every_program_has_main_with_argv(module: str) -> None:
+def test_every_program_has_main_with_argv_and_a_console_script(module: str) -> None:
     main = importlib.import_module(module).main
     assert "argv" in main.__code__.co_varnames[:main.__code__.co_argcount], module
+    assert f"{module}:main" in SCRIPTS.values(), f"{module} has no console script in pyproject.toml"

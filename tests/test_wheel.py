@@ -7,6 +7,7 @@ the build requirements' wheels there).
 
 from __future__ import annotations
 
+import importlib.metadata
 import os
 import re
 import shutil
@@ -17,12 +18,13 @@ import zipfile
 from pathlib import Path
 
 import pytest
-import tomllib
 from apprunner import AppRunner
 
 ROOT = Path(__file__).resolve().parent.parent
 WHEELHOUSE = ROOT / ".venv" / "wheelhouse"
-SCRIPTS = sorted(tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"])
+# The console scripts pyproject.toml declares, as the development install (scripts/setup) registered them.
+SCRIPTS = sorted(entry.name for entry in importlib.metadata.distribution("automotive-databus").entry_points
+                 if entry.group == "console_scripts")
 NOT_COPIED = shutil.ignore_patterns(".venv", ".git", "build", "logs", "out", "__pycache__", "*.egg-info", ".*_cache")
 
 
