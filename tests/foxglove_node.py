@@ -23,6 +23,7 @@ import pytest
 
 PACKAGE_DIR = Path(__file__).resolve().parent / "foxglove"
 DECODER = PACKAGE_DIR / "decode.js"
+MIN_NODE_MAJOR = 20  # the "engines" of @foxglove/rosmsg2-serialization 3.1.0
 INSTALL_TIMEOUT_S = 600.0  # from the npm registry on a loaded machine; seconds from npm's own cache
 
 
@@ -39,6 +40,10 @@ def install() -> Path:
     if missing:
         pytest.fail(f"{' and '.join(missing)} not found: install the Debian package nodejs (scripts/setup does)",
                     pytrace=False)
+    version = subprocess.run(["node", "--version"], capture_output=True, text=True, timeout=60).stdout.strip()
+    if int(version.lstrip("v").split(".")[0] or 0) < MIN_NODE_MAJOR:
+        pytest.fail(f"node {version} found: Foxglove's @foxglove/rosmsg2-serialization needs Node.js "
+                    f"{MIN_NODE_MAJOR} or newer (the nodejs package of Debian 13, or NodeSource's)", pytrace=False)
     lock = (PACKAGE_DIR / "package-lock.json").read_bytes()
     root = cache_root()
     target = root / hashlib.sha256(lock).hexdigest()[:16]
