@@ -22,13 +22,17 @@ from cyclonedds.idl import IdlEnum, IdlStruct
 from foxglove_node import FoxgloveDecoder, install, json_lines
 from mcap.reader import make_reader
 from test_bridge import advertised, start_bridge
+from test_record import ALERT, cloud, matched_writer, start_recorder
 from test_system import CAR, TRUCK, scene
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
+from automotive.endpoints import Databus
 from automotive.flows import Flow, system_flows
 from automotive.lfsr import FramePattern
+from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum
+from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, rewrite_request, rewrite_response
 
 TIMEOUT = 90.0
@@ -119,9 +123,9 @@ def check_decoded(lines: list[dict[str, Any]], flows: list[Flow], payloads: dict
     # The system's inputs, as Foxglove shows them.
     assert alert_states(by_topic["AlertTopic"]) == [True, False], f"{source}: alerts {by_topic['AlertTopic']}"
     assert {name: value for name, value in by_topic["AlertTopic"][0].items() if value} == {"driverAttention": True}
-    for cloud in by_topic["rt/LidarTopic"]:
-        assert (cloud["data"]["bytes"], cloud["width"] * cloud["height"], cloud["point_step"],
-                cloud["header"]["frame_id"], [field["name"] for field in cloud["fields"]]) == (
+    for scan in by_topic["rt/LidarTopic"]:
+        assert (scan["data"]["bytes"], scan["width"] * scan["height"], scan["point_step"],
+                scan["header"]["frame_id"], [field["name"] for field in scan["fields"]]) == (
             CLOUD_BYTES, 11_520, 16, "map", ["x", "y", "z", "rgb"])
     car = {"classification": ClassificationEnum(CAR).name, "position": [12.5, -1.5, 0.0],
            "velocity": [3.25, 0.5, -0.25], "size": [4.5, 1.5, 1.75]}
@@ -193,6 +197,27 @@ def test_foxglove_decodes_every_channel_of_a_recording_and_of_the_bridge(  # typ
     assert recorded["CameraImageData"] == CAMERA_FRAMES
     assert sum(recorded.values()) == summary["messages"]
     check_decoded([line for line in live if line["kind"] in ("channel", "message")], flows, payloads, "the bridge")
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4"])
+def test_foxglove_decodes_compressed_recordings(apps, bus: Databus, domain_id: int, tmp_path: Path,  # type: ignore[no-untyped-def]
+                                                foxglove: FoxgloveDecoder, compression: str) -> None:
+    recording = tmp_path / f"{compression}.mcap"
+    recorder = start_recorder(apps, domain_id, recording, "--topics", "AlertTopic,rt/LidarTopic",
+                              "-D", f"config.compression={compression}")
+    matched_writer(bus, recorder, "AlertTopic", DriverAlerts, "HMI").write(ALERT)
+    matched_writer(bus, recorder, "rt/LidarTopic", PointCloud2_, "Lidar").write(cloud())
+    recorder.wait_for(r"recorded=2 ", timeout=TIMEOUT)
+    assert recorder.stop(signal.SIGINT) == 0, recorder.output[-3000:]
+    lines = foxglove.run("mcap", str(recording), timeout=DECODE_TIMEOUT)
+    errors = [line for line in lines if "error" in line]
+    assert not errors, errors
+    [summary] = [line for line in lines if line["kind"] == "mcap"]
+    assert (summary["compressions"], summary["messages"], summary["chunksWithCrc"] > 0) == ([compression], 2, True)
+    payloads = recorded_payloads(recording)
+    for line in (line for line in lines if line["kind"] == "message"):
+        compare(line["value"], type(ALERT if line["topic"] == "AlertTopic" else cloud()).deserialize(
+            payloads[(line["topic"], line["raw"])]), line["topic"])
 
 
 def test_the_bridge_accepts_both_subprotocol_names(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]

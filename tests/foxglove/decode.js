@@ -6,13 +6,13 @@
 //                                                @foxglove/ws-protocol client names (FoxgloveClient.SUPPORTED_SUBPROTOCOL)
 //
 // Schemas: "omgidl" with @foxglove/omgidl-parser + @foxglove/omgidl-serialization, "ros2msg" with @foxglove/rosmsg +
-// @foxglove/rosmsg2-serialization; MCAP with @mcap/core (chunk CRCs checked); WebSocket with @foxglove/ws-protocol's
-// FoxgloveClient over the `ws` package (Node 20 has no WebSocket of its own).
+// @foxglove/rosmsg2-serialization; MCAP with @mcap/core (chunk CRCs checked) and @mcap/support's decompressors;
+// WebSocket with @foxglove/ws-protocol's FoxgloveClient over the `ws` package (Node 20 has no WebSocket of its own).
 //
 // Lines (one JSON object each, "kind" first):
 //   {"kind": "channel", "topic", "schemaName", "schemaEncoding", "messageEncoding"[, "error"]}
 //   {"kind": "message", "topic", "logTime", "raw": sha256 of the payload[, "rawBase64" up to 1 MiB], "value"|"error"}
-//   {"kind": "mcap", "profile", "messages", "chunks", "chunksWithCrc"}   once a file is read through
+//   {"kind": "mcap", "profile", "messages", "chunks", "chunksWithCrc", "compressions"}   once a file is read through
 //   {"kind": "open", "protocol"} / {"kind": "close", "code"} / {"kind": "error", "error"}   WebSocket events
 // Values: members by name as decoded; an enum member as the name of its enumerator, as the Foxglove app shows it;
 // octet arrays as {"bytes": length, "sha256": hex}; other typed arrays as arrays; NaN and infinities as strings.
@@ -21,6 +21,7 @@
 const crypto = require("crypto");
 const fs = require("fs");
 const { McapIndexedReader, McapStreamReader } = require("@mcap/core");
+const { loadDecompressHandlers } = require("@mcap/support");
 const { parseIDL } = require("@foxglove/omgidl-parser");
 const { MessageReader: IdlMessageReader } = require("@foxglove/omgidl-serialization");
 const { parse: parseRosMessageDefinition } = require("@foxglove/rosmsg");
@@ -144,8 +145,10 @@ async function readMcap(path) {
       return buffer;
     },
   };
-  // What the Foxglove app does with a complete file: the indexed reader, chunk CRCs validated.
-  const reader = await McapIndexedReader.Initialize({ readable });
+  // What the Foxglove app does with a complete file: the indexed reader, chunk CRCs validated; zstd, lz4 and bz2
+  // chunks decompressed with the WebAssembly decompressors of @mcap/support.
+  const decompressHandlers = await loadDecompressHandlers();
+  const reader = await McapIndexedReader.Initialize({ readable, decompressHandlers });
   const decoders = new Map();
   for (const [id, channel] of reader.channelsById) {
     const schema = reader.schemasById.get(channel.schemaId);
@@ -159,9 +162,10 @@ async function readMcap(path) {
     messages += 1;
   }
   // The whole file once more, front to back, with the streaming reader: every record parses, every chunk CRC holds.
-  const stream = new McapStreamReader({ includeChunks: true, validateCrcs: true });
+  const stream = new McapStreamReader({ includeChunks: true, validateCrcs: true, decompressHandlers });
   let chunks = 0;
   let chunksWithCrc = 0;
+  const compressions = new Set();
   let streamed = 0;
   const piece = new Uint8Array(1 << 20);
   for (let offset = 0; offset < size; ) {
@@ -172,6 +176,7 @@ async function readMcap(path) {
       if (record.type === "Chunk") {
         chunks += 1;
         chunksWithCrc += record.uncompressedCrc !== 0 ? 1 : 0;
+        compressions.add(record.compression);
       } else if (record.type === "Message") {
         streamed += 1;
       }
@@ -184,7 +189,8 @@ async function readMcap(path) {
   if (streamed !== messages) {
     throw new Error(`${path}: ${streamed} messages streamed, ${messages} read through the index`);
   }
-  emit({ kind: "mcap", profile: reader.header.profile, messages, chunks, chunksWithCrc });
+  emit({ kind: "mcap", profile: reader.header.profile, messages, chunks, chunksWithCrc,
+         compressions: [...compressions].sort() });
 }
 
 function readWebSocket(url, subprotocol) {
