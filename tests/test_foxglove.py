@@ -257,6 +257,46 @@ def test_the_handshake_rewrite() -> None:
     assert rewrite_response(refused) == refused
 
 
+def test_the_types_no_flow_uses_decode_in_foxglove_too(tmp_path: Path, foxglove: FoxgloveDecoder) -> None:
+    """The IDL's other types, as omgidl channels: the other camera frame sizes, the original's lane and LiDAR types,
+    and PointCloud2_ itself (the flows above cover the rest)."""
+    from mcap.writer import CompressionType, Writer
+
+    from automotive.flows import IDL_FILE, type_name
+    from automotive.types.CameraImage import CameraImageData_1MiB, CameraImageData_4MiB, CameraImageData_64KiB
+    from automotive.types.Common import POSIXTimestamp
+    from automotive.types.Lane import ConfidenceEnum, LaneBoundaryEnum, LaneObject, LaneSensor
+    from automotive.types.Lidar import LidarSensor, PCloud, Point
+
+    frames = [frame_type(id=7, sec_=-2, nanosec_=3, seqnum=9, data=bytes(FramePattern(size).frame(9)))
+              for frame_type, size in ((CameraImageData_64KiB, 65_536), (CameraImageData_1MiB, 1_048_576),
+                                       (CameraImageData_4MiB, 4_194_304))]
+    lane = LaneObject(isValid=True, confidence=ConfidenceEnum.CONFIDENCE_HIGH,
+                      boundaryType=LaneBoundaryEnum.BOUNDRY_DOUBLEMARKER, offset=1.5, headingAngle=-0.25,
+                      curvature=0.125)
+    lidar = LidarSensor(timestamp=POSIXTimestamp(s=5, ns=6), ptCloud=PCloud(
+        Location=[Point(point=[1.0, -2.0, 3.5]), Point(point=[0.0, 0.5, -1.0])], color=200, normal=0.5,
+        intensity=0.75, count=2, xLimits=[-1.0, 1.0], yLimits=[-2.0, 2.0], zLimits=[-3.0, 3.0]))
+    samples = [*frames, LaneSensor(left=lane, right=lane), lidar, cloud()]
+    path = tmp_path / "types.mcap"
+    with open(path, "wb") as stream:
+        writer = Writer(stream, compression=CompressionType.NONE)
+        writer.start(profile="ros2")
+        for sample in samples:
+            schema = writer.register_schema(type_name(type(sample)), "omgidl", IDL_FILE.read_bytes())
+            channel = writer.register_channel(type_name(type(sample)), "cdr", schema)
+            writer.add_message(channel, log_time=1, publish_time=1, data=sample.serialize(use_version_2=False))
+        writer.finish()
+    lines = foxglove.run("mcap", str(path), timeout=DECODE_TIMEOUT)
+    errors = [line for line in lines if "error" in line]
+    assert not errors, errors
+    decoded = {line["topic"]: line["value"] for line in lines if line["kind"] == "message"}
+    assert sorted(decoded) == sorted(type_name(type(sample)) for sample in samples)
+    for sample in samples:
+        compare(decoded[type_name(type(sample))], sample, type_name(type(sample)))
+    assert decoded["Lane::LaneSensor"]["left"]["boundaryType"] == "BOUNDRY_DOUBLEMARKER"
+
+
 def test_decode_js_reports_a_schema_foxglove_cannot_parse(tmp_path: Path, foxglove: FoxgloveDecoder) -> None:
     """The check itself: the IDL as it was before the fix (a constant expression) fails in Foxglove's parser."""
     from mcap.writer import CompressionType, Writer
