@@ -39,7 +39,9 @@ def _split_head(head: bytes) -> list[bytes]:
 
 
 def _header_name(line: bytes) -> bytes:
-    return line.split(b":", 1)[0].strip().lower()
+    """A header line's name, lower case; empty for a line that is no header (no colon)."""
+    name, colon, _ = line.partition(b":")
+    return name.strip().lower() if colon else b""
 
 
 def rewrite_request(head: bytes) -> tuple[bytes, bool]:

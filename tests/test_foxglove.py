@@ -250,6 +250,8 @@ def test_the_handshake_rewrite() -> None:
     other = b"GET / HTTP/1.1\r\nSec-WebSocket-Protocol: foxglove.websocket.v2"
     assert rewrite_request(other) == (other, False)
     assert rewrite_request(b"GET / HTTP/1.1\r\nHost: h") == (b"GET / HTTP/1.1\r\nHost: h", False)
+    malformed = b"GET / HTTP/1.1\r\nSec-WebSocket-Protocol\r\nHost: h"  # passed on: the SDK answers it
+    assert rewrite_request(malformed) == (malformed, False)
     answer = b"HTTP/1.1 101 Switching Protocols\r\nsec-websocket-protocol: foxglove.sdk.v1\r\nsec-websocket-accept: a"
     assert rewrite_response(answer) == (b"HTTP/1.1 101 Switching Protocols\r\nSec-WebSocket-Protocol: "
                                         b"foxglove.websocket.v1\r\nsec-websocket-accept: a")
