@@ -145,8 +145,8 @@ async function readMcap(path) {
       return buffer;
     },
   };
-  // What the Foxglove app does with a complete file: the indexed reader, chunk CRCs validated; zstd, lz4 and bz2
-  // chunks decompressed with the WebAssembly decompressors of @mcap/support.
+  // What the Foxglove app does with a complete file: the indexed reader, chunk CRCs validated. Compressed chunks go
+  // through MCAP's own WebAssembly decompressors (@mcap/support: zstd, lz4, bz2).
   const decompressHandlers = await loadDecompressHandlers();
   const reader = await McapIndexedReader.Initialize({ readable, decompressHandlers });
   const decoders = new Map();
