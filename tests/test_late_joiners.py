@@ -5,8 +5,9 @@ that other stacks probe by default), with its shipped network defaults (no CYCLO
 longer than Cyclone's default prune delay for unanswered peers (30 s): until that was fixed, a tool that joined then
 missed the applications whose participant index it does not probe itself. The tools use their own defaults for a
 single host: RTI Connext with its initial peer udpv4://127.0.0.1 (it probes participant indexes 0-4), Fast DDS with
-its initial peer 127.0.0.1 and its default range of four participant indexes. Each must see every flow within LATE_JOIN_BOUND_S
-(README: "Late joiners"). In redundant mode, a late RTI reader with EXCLUSIVE ownership follows a failover.
+its initial peer 127.0.0.1 and its default range of four participant indexes. Each must see every flow within
+LATE_JOIN_BOUND_S (README: "Late joiners"). In redundant mode, a late RTI reader with EXCLUSIVE ownership follows a
+failover.
 
 The same tools starting first are tested in tests/test_rti_shipped_defaults.py and tests/test_fastdds_interop.py.
 """
