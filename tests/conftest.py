@@ -32,6 +32,12 @@ def domain_id() -> int:
     return next(_domain_ids)
 
 
+@pytest.fixture(scope="module")
+def module_domain_id() -> int:
+    """A domain id of its own for a module whose tests share one running system."""
+    return next(_domain_ids)
+
+
 @pytest.fixture
 def apps() -> Iterator[object]:
     """Start application processes; every one still running at the end of the test is stopped."""

@@ -60,15 +60,18 @@ class FastDdsPeer:
 
     @classmethod
     def read(cls, apps: Any, topics: list[str], domain_id: int, count: int = 0, qos: str = "default",
-             data: bool = False, name: str = "fastdds-reader") -> FastDdsPeer:
+             data: bool = False, name: str = "fastdds-reader", participants: int | None = None) -> FastDdsPeer:
+        """A reader per topic; ``participants``: participant indexes probed on 127.0.0.1 (None: Fast DDS's
+        default, four)."""
         command = [str(build()), "read", *topics, "--domain", str(domain_id), "--count", str(count), "--qos", qos]
-        return cls(apps.start_command(name, command + (["--data"] if data else [])))
+        return cls(apps.start_command(name, command + (["--data"] if data else []) + _range(participants)))
 
     @classmethod
-    def write_circle(cls, apps: Any, domain_id: int, color: str, x: int, y: int, size: int) -> FastDdsPeer:
+    def write_circle(cls, apps: Any, domain_id: int, color: str, x: int, y: int, size: int,
+                     participants: int | None = None) -> FastDdsPeer:
         command = [str(build()), "write", "Circle", "--domain", str(domain_id), "--color", color,
                    "--x", str(x), "--y", str(y), "--size", str(size)]
-        return cls(apps.start_command("fastdds-writer", command))
+        return cls(apps.start_command("fastdds-writer", command + _range(participants)))
 
     def wait_matched(self, topic: str, what: str = "writer", timeout: float = 60.0) -> None:
         self.process.wait_for(rf"^matched: [1-9]\d* {what}\(s\) on {re.escape(topic)}$", timeout)
@@ -88,6 +91,10 @@ class FastDdsPeer:
 
     def stop(self) -> int:
         return int(self.process.stop())
+
+
+def _range(participants: int | None) -> list[str]:
+    return [] if participants is None else ["--participants", str(participants)]
 
 
 def octets(value: dict[str, Any]) -> bytes:

@@ -13,7 +13,8 @@ Endpoint names (see ENDPOINTS): Circle, Lidar, Alerts, Vision, PlatformControl, 
 Camera, Camera64KiB.
 RTI stays on loopback (UDPv4 only, no multicast, initial peer 127.0.0.1): see the Loopback QoS profile. With
 ``initial_peers`` it uses the interfaces of its network namespace instead and announces itself only to those hosts
-(the Unicast profile), as RTI users configure a network without multicast.
+(the Unicast profile), as RTI users configure a network without multicast; with ``lan`` it has RTI's own defaults
+(multicast discovery on every interface: inside a test's network namespace only).
 
 Run as a script, inside a test's network namespace, it is one such participant in a process of its own: it writes
 the given samples every 0.2 s and prints one line per matched endpoint and per distinct sample it reads::
@@ -73,7 +74,7 @@ _peer_numbers = itertools.count(1)
 
 
 def _participant_xml(library: str, domain_id: int, writers: Mapping[str, str], readers: Mapping[str, str],
-                     initial_peers: Sequence[str] = ()) -> str:
+                     initial_peers: Sequence[str] = (), lan: bool = False) -> str:
     def endpoint(tag: str, qos_tag: str, name: str, profile: str) -> str:
         topic = ENDPOINTS[name].topic
         return (f"<{tag} name={quoteattr(name)} topic_ref={quoteattr(topic)}>"
@@ -83,13 +84,15 @@ def _participant_xml(library: str, domain_id: int, writers: Mapping[str, str], r
     subscriber = "".join(endpoint("data_reader", "datareader_qos", n, p) for n, p in readers.items())
     return (f"<dds><domain_participant_library name={quoteattr(library)}>"
             f"<domain_participant name=\"Peer\" domain_ref=\"RtiPeerDomains::Automotive\" domain_id=\"{domain_id}\">"
-            f"{_participant_qos(initial_peers)}"
+            f"{_participant_qos(initial_peers, lan)}"
             f"<publisher name=\"Pub\">{publisher}</publisher>"
             f"<subscriber name=\"Sub\">{subscriber}</subscriber>"
             f"</domain_participant></domain_participant_library></dds>")
 
 
-def _participant_qos(initial_peers: Sequence[str]) -> str:
+def _participant_qos(initial_peers: Sequence[str], lan: bool = False) -> str:
+    if lan:
+        return f"<domain_participant_qos base_name=\"{QOS_LIBRARY}::Lan\"/>"
     if not initial_peers:
         return f"<domain_participant_qos base_name=\"{QOS_LIBRARY}::Loopback\"/>"
     peers = "".join(f"<element>udpv4://{peer}</element>" for peer in initial_peers)
@@ -113,19 +116,20 @@ class RtiPeer:
     ``writers``/``readers`` are endpoint names (keys of ENDPOINTS), or mappings from endpoint name to a QoS
     profile of the RtiPeerQos library: "Writer", "WriterXcdr2" (writes XCDR2), "ReliableReader",
     "BestEffortReader", "ReliableReaderXcdr2"/"BestEffortReaderXcdr2" (also accept XCDR2), "Alerts",
-    "DefaultReader" (RTI's defaults: what an application that names no profile gets).
+    "DefaultReader" (RTI's defaults: what an application that names no profile gets), "ExclusiveReader" (the
+    defaults with EXCLUSIVE ownership and a 300 ms liveliness lease, keeping 100 samples).
     Samples are dicts as RTI Connector gives them: nested dicts for structs, lists for sequences, arrays and octet
     sequences (a list of ints), ints for enums.
     """
 
     def __init__(self, domain_id: int, writers: Iterable[str] | Mapping[str, str] = (),
                  readers: Iterable[str] | Mapping[str, str] = (), xml: Path = RTI_XML,
-                 initial_peers: Sequence[str] = ()):
+                 initial_peers: Sequence[str] = (), lan: bool = False):
         self.domain_id = domain_id
         self.writers = _profiles(writers, lambda e: e.writer_profile)
         self.readers = _profiles(readers, lambda e: e.reader_profile)
         library = f"RtiPeer{next(_peer_numbers)}"
-        participant = _participant_xml(library, domain_id, self.writers, self.readers, initial_peers)
+        participant = _participant_xml(library, domain_id, self.writers, self.readers, initial_peers, lan)
         self.connector: rti.Connector | None = rti.Connector(f"{library}::Peer", f'{xml};str://"{participant}"')
         self._outputs = {name: self.connector.get_output(f"Pub::{name}") for name in self.writers}
         self._inputs = {name: self.connector.get_input(f"Sub::{name}") for name in self.readers}
@@ -239,6 +243,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="One RTI Connext participant in a process of its own.")
     parser.add_argument("--domain", type=int, required=True)
     parser.add_argument("--initial-peers", default="", help="comma-separated hosts (default: loopback only)")
+    parser.add_argument("--lan", action="store_true", help="RTI's default discovery (multicast), every interface")
     parser.add_argument("--read", default="", metavar="NAME[:PROFILE],...",
                         help="endpoints to read, each with its default reader profile or the one named")
     parser.add_argument("--write", action="append", default=[], metavar="NAME=JSON",
@@ -255,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     try:
         peer = RtiPeer(args.domain, writers=list(samples), readers=readers,
-                       initial_peers=[host for host in args.initial_peers.split(",") if host])
+                       initial_peers=[host for host in args.initial_peers.split(",") if host], lan=args.lan)
     except ValueError as error:
         print(error, file=sys.stderr)
         return 2

@@ -48,12 +48,13 @@ def available(module: str) -> bool:
             and config.properties_file(module).is_file())
 
 
-def launch(apps: AppRunner, domain_id: int, log_dir: Path, *args: str) -> CommandProcess:
+def launch(apps: AppRunner, domain_id: int, log_dir: Path, *args: str,
+           env: dict[str, str] | None = None) -> CommandProcess:
     # No display: the HMI shows its console box whatever the test machine has.
     return apps.start_command("launch", [*LAUNCH, "--mode", "background",
                                          "--domain", str(domain_id), "--log-dir", str(log_dir),
                                          "--stop-timeout", str(STOP_TIMEOUT), *args],
-                              env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+                              env={"DISPLAY": "", "WAYLAND_DISPLAY": "", **(env or {})})
 
 
 def started_pids(launcher: CommandProcess) -> dict[str, int]:

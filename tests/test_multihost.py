@@ -322,3 +322,53 @@ def test_lan_multicast_with_the_launcher_on_each_host(hosts: TwoHosts, tmp_path:
     for launcher in (on_a, on_b):
         launcher.process.send_signal(signal.SIGINT)
         assert launcher.wait_exit(timeout=20) == 0, launcher.output[-2000:]
+
+
+# A system older than Cyclone's default prune delay for unanswered peers (30 s), and what the README promises a
+# participant of any stack that joins it later (tests/test_late_joiners.py has the single-host cases).
+SYSTEM_AGE_S = 35.0
+LATE_JOIN_BOUND_S = 10.0
+LATE_READS = ("Vision", "SensorObjects", "PlatformStatus", "PlatformControl", "Alerts", "Lidar", "Camera")
+
+
+def late_rti_participant(hosts: TwoHosts, launcher: CommandProcess, *rti_args: str) -> None:
+    """Start an RTI participant on B once the system launched on A has run SYSTEM_AGE_S: it must match every flow
+    within LATE_JOIN_BOUND_S, receive the small ones, and its circle must reach the LiDAR on A."""
+    launcher.wait_for(r"application\(s\) running")
+    started = time.monotonic()
+    launcher.wait_for(r"^lidar\s+\| .*frame \d+:")
+    time.sleep(max(0.0, started + SYSTEM_AGE_S - time.monotonic()))  # the point of the test: join late
+    assert launcher.process.poll() is None, launcher.output[-4000:]
+    joined = time.monotonic()
+    rti = hosts.start(hosts.b, "rti_peer", [
+        "unshare", "--ipc", sys.executable, str(ROOT / "tests" / "rti_peer.py"), "--domain", str(hosts.domain_id),
+        *rti_args, "--read", ",".join(f"{name}:DefaultReader" for name in LATE_READS),
+        "--write", 'Circle={"color": "ORANGE", "x": 100, "y": 100, "shapesize": 30}'])
+    for name in LATE_READS:
+        rti.wait_for(rf"^reader {name} matched [1-9]", timeout=LATE_JOIN_BOUND_S + joined - time.monotonic())
+    rti.wait_for(r"^writer Circle matched [1-9]", timeout=LATE_JOIN_BOUND_S + joined - time.monotonic())
+    print(f"late RTI participant on B matched every flow after {time.monotonic() - joined:.2f} s")
+    for name in ("Vision", "SensorObjects", "PlatformStatus", "PlatformControl", "Lidar"):
+        rti.wait_for(rf"^received {name} ")
+    launcher.wait_for(r"^lidar\s+\| .*shape ORANGE appeared")
+
+
+def test_a_late_rti_participant_on_another_host_finds_every_application_with_unicast_peers(
+        hosts: TwoHosts, tmp_path: Path) -> None:
+    """The whole system on A in peers mode, an RTI participant on B (initial peers: A) joining it late."""
+    launcher = hosts.start(hosts.a, "launch", [
+        sys.executable, str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
+        "--domain", str(hosts.domain_id), "--peers", PEERS, "--log-dir", str(tmp_path / "a")])
+    late_rti_participant(hosts, launcher, "--initial-peers", ADDRESS_A)
+    hosts.assert_no_cyclone_lines()
+
+
+def test_a_late_rti_participant_on_another_host_finds_every_application_on_a_multicast_lan(
+        hosts: TwoHosts, tmp_path: Path) -> None:
+    """The whole system on A in LAN mode, an RTI participant on B with RTI's own defaults joining it late."""
+    for host in (hosts.a, hosts.b):
+        must("ip", "-n", host.namespace, "link", "set", host.device, "multicast", "on")
+    launcher = hosts.start(hosts.a, "launch", [
+        sys.executable, str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
+        "--domain", str(hosts.domain_id), "--interface", hosts.a.device, "--log-dir", str(tmp_path / "a")])
+    late_rti_participant(hosts, launcher, "--lan")

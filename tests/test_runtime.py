@@ -66,7 +66,8 @@ def test_writer_and_reader_from_profiles_exchange_data(domain_id: int) -> None:
 def test_network_configurations() -> None:
     loopback = NetworkConfig.from_settings().cyclone_xml()
     assert '<NetworkInterface name="lo"/>' in loopback and "<AllowMulticast>false" in loopback
-    assert '<Peer address="127.0.0.1"/>' in loopback
+    # every index of this host probed as long as the application runs, every 2 s: a tool started later is found
+    assert '<Peer address="127.0.0.1" PruneDelay="inf"/>' in loopback and "<SPDPInterval>2s<" in loopback
 
     lan = NetworkConfig.from_settings(interface="eth1").cyclone_xml()
     assert '<NetworkInterface name="eth1"/>' in lan and "<AllowMulticast>true" in lan and "<Peer" not in lan
@@ -75,9 +76,9 @@ def test_network_configurations() -> None:
     xml = peers.cyclone_xml(PeerPlan(remote=("10.0.0.2", "10.0.0.3"), own=("10.0.0.1",)))
     assert "<AllowMulticast>false" in xml
     assert '<NetworkInterface name="eth1"/>' in xml
-    # the other hosts probed for 5 minutes; this host (Cyclone adds its interface's address) as long as it runs
-    assert '<Peer address="10.0.0.2" PruneDelay="300s"/><Peer address="10.0.0.3" PruneDelay="300s"/>' in xml
-    assert '<Peer address="10.0.0.1"/>' in xml and "<InitialLocatorPruneDelay>inf<" in xml
+    # every host (this one too: Cyclone adds its interface's address) probed as long as the application runs
+    assert '<Peer address="10.0.0.2"/><Peer address="10.0.0.3"/><Peer address="10.0.0.1"/>' in xml
+    assert "PruneDelay=" not in xml and "<InitialLocatorPruneDelay>inf<" in xml
     # RTI answers a participant of its own host through 127.0.0.1: Cyclone must not drop what arrives on lo
     assert "<ExtendedPacketInfo>false</ExtendedPacketInfo>" in xml
     assert "<MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>" in xml

@@ -8,12 +8,13 @@
 //       (zlib's CRC-32), plus "base64" with --data. Ends after N samples of every topic (0: until stopped).
 //   fastdds_peer write Circle --color C --x X --y Y --size S [--domain N] [--count N] [--period-ms MS]
 //       A Shapes Demo circle (ShapeType) with Fast DDS's default writer QoS, written every MS ms (100).
-//   Both: --participants N (participant ids probed on 127.0.0.1, 120; Fast DDS's default is 4),
+//   Both: --participants N (participant ids probed on 127.0.0.1; without it Fast DDS's default, 4),
 //         --socket-buffer BYTES (UDP send and receive buffers, 4 MiB; 0: the system's default).
 //
 // QoS "default" is Fast DDS's default DataReaderQos; "rviz2" is what RViz2 asks for a point cloud: reliable,
 // volatile, keep last 5. Traffic stays on loopback: UDPv4 on 127.0.0.1 only, shared memory off, no multicast,
-// initial peer 127.0.0.1 probed for participant ids 0..N-1. SIGINT/SIGTERM end it cleanly.
+// initial peer 127.0.0.1 probed for participant ids 0..N-1 (Fast DDS's default range unless --participants: the
+// project's participants must find it, as they find any tool started on the host). SIGINT/SIGTERM end it cleanly.
 
 #include <atomic>
 #include <chrono>
@@ -51,7 +52,7 @@ using namespace eprosima::fastdds::dds;
 
 namespace {
 
-constexpr uint32_t MAX_PARTICIPANTS = 120;  // as many participant ids as the project's Cyclone side probes
+constexpr uint32_t DEFAULT_PARTICIPANTS = 0;  // 0: Fast DDS's own maxInitialPeersRange
 constexpr uint32_t SOCKET_BUFFER = 4 * 1024 * 1024;  // room for a burst of 4 MiB camera frame fragments
 
 std::atomic<bool> stop_requested{false};
@@ -368,7 +369,9 @@ DomainParticipant* create_participant(uint32_t domain, uint32_t participants, ui
     qos.name("fastdds_peer");
     auto udp = std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>();
     udp->interfaceWhiteList.push_back("127.0.0.1");
-    udp->maxInitialPeersRange = participants;
+    if (participants > 0) {
+        udp->maxInitialPeersRange = participants;
+    }
     if (socket_buffer > 0) {  // 0: Fast DDS's default (the system's)
         udp->sendBufferSize = socket_buffer;
         udp->receiveBufferSize = socket_buffer;
@@ -406,7 +409,7 @@ struct Options
     std::string color = "BLUE";
     int32_t x = 120, y = 135, size = 30;
     uint32_t period_ms = 100;
-    uint32_t participants = MAX_PARTICIPANTS;
+    uint32_t participants = DEFAULT_PARTICIPANTS;
     uint32_t socket_buffer = SOCKET_BUFFER;
 };
 

@@ -3,10 +3,17 @@
 The choice produces a Cyclone DDS configuration (XML) for the application's domain. A user's own CYCLONEDDS_URI
 is honoured: when it is set and no network option was given explicitly, it is used untouched.
 
+Late joiners: a tool of another DDS implementation (RTI Admin Console, rtiddsspy, Shapes Demo, RViz2 on Fast DDS)
+started on a host where the system already runs announces itself only to the few participant indexes it probes by
+default (RTI 0-4, Fast DDS 0-3), so the participants with higher indexes must find it themselves. In loopback and
+peers modes every participant therefore keeps probing every participant index of every peer for as long as it runs
+(Cyclone's default stops after 30 s), every LOOPBACK_ANNOUNCE_INTERVAL / PEERS_ANNOUNCE_INTERVAL: a late joiner is
+found within about that interval, at the cost measured in docs/deployment.md. In LAN mode the joiner's own
+multicast announcement reaches every participant at once.
+
 Unicast peers: each listed host is probed at every participant index (a UDP port) for participant announcements.
 The peer list may name only the other hosts (as RTI users write initial peers) or every host: this host is always
-probed (its interface's address, and its own addresses found in the list) for as long as the application runs, so
-that a participant of any DDS implementation started here later is still found. Other implementations (RTI Connext)
+probed too (its interface's address, and its own addresses found in the list). Other implementations (RTI Connext)
 answer a participant of the same host through 127.0.0.1: Cyclone is told not to drop announcements that arrive on an
 interface it does not use. A peer that cannot be used (its name does not resolve, no route leads to it) is left out
 and reported once by the caller.
@@ -37,13 +44,16 @@ DEFAULT_MAX_PARTICIPANTS = 120
 LARGE_DATA_FRAGMENT_SIZE = 62000
 LARGE_DATA_SOCKET_BUFFER = "4MiB"
 # Peers mode: a participant announces itself every second, to the participants it knows and to every probed index
-# of every peer (Cyclone's default is every 8 s to the known, and a probe after 0.1 s then every 30 s to the rest).
-# Under 10 % loss a lost announcement is repeated a second later, so two hosts meet within a few seconds
-# (docs/deployment.md). Indexes of other hosts where no participant answered are probed for PEER_PROBE_DURATION
-# (a host started later announces itself); this host's are probed as long as the application runs (cheap: the
-# datagrams never leave the host).
+# of every peer (Cyclone's default is every 8 s to the known, and a probe after 0.1 s then every 30 s, for 30 s, to
+# the rest). Under 10 % loss a lost announcement is repeated a second later, so two hosts meet within a few seconds
+# (docs/deployment.md). Every index of every peer is probed as long as the application runs ("inf"), so that a tool
+# started later on any host, which probes only its first few indexes of our host, is found.
 PEERS_ANNOUNCE_INTERVAL = "1s"
-PEER_PROBE_DURATION = "300s"
+# Loopback mode: the same probing of every index of this host, every 2 s (measured: about 60 datagrams/s and 1.5 ms
+# of CPU/s per participant, never leaving the host; docs/deployment.md).
+LOOPBACK_ANNOUNCE_INTERVAL = "2s"
+PROBE_FOREVER = "inf"
+LOOPBACK_ANNOUNCE_INTERVAL = "2s"
 LOCALHOST = "127.0.0.1"
 _HOST_NAME = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?$")
 
@@ -122,8 +132,9 @@ class NetworkConfig:
         if self.mode == PEERS:
             return self._peers_xml(plan or self.peer_plan())
         if self.mode == LOOPBACK:
-            discovery = (f'<Discovery><Peers><Peer address="{LOCALHOST}"/></Peers>'
-                         f"{self._participant_index_xml()}</Discovery>")
+            discovery = (f'<Discovery><Peers><Peer address="{LOCALHOST}" PruneDelay="{PROBE_FOREVER}"/></Peers>'
+                         f"{self._participant_index_xml()}"
+                         f"<SPDPInterval>{LOOPBACK_ANNOUNCE_INTERVAL}</SPDPInterval></Discovery>")
             return self._domain_xml(_interfaces_xml("lo"), False, discovery)
         return self._domain_xml(_interfaces_xml(self.interface), True, "")
 
@@ -131,14 +142,12 @@ class NetworkConfig:
         interface = self.interface or plan.route_source
         if not interface and not any(not _is_loopback(name) for _, name in socket.if_nameindex()):
             interface = "lo"  # a host without a network
-        # Cyclone probes this host's own address (the interface's) by itself; with the prune delay "inf" below, as
-        # long as it runs. Listed peers that are this host get the same; the other hosts are probed for a while.
-        peers = "".join(f'<Peer address={quoteattr(peer)} PruneDelay="{PEER_PROBE_DURATION}"/>'
-                        for peer in plan.remote)
-        peers += "".join(f"<Peer address={quoteattr(peer)}/>" for peer in plan.own)
+        # Cyclone probes this host's own address (the interface's) by itself; with the prune delay below, as long as
+        # it runs, like every listed peer.
+        peers = "".join(f"<Peer address={quoteattr(peer)}/>" for peer in (*plan.remote, *plan.own))
         discovery = (f"<Discovery><Peers>{peers}</Peers>{self._participant_index_xml()}"
                      f"<SPDPInterval>{PEERS_ANNOUNCE_INTERVAL}</SPDPInterval>"
-                     "<InitialLocatorPruneDelay>inf</InitialLocatorPruneDelay></Discovery>")
+                     f"<InitialLocatorPruneDelay>{PROBE_FOREVER}</InitialLocatorPruneDelay></Discovery>")
         # Not asking the kernel on which interface a packet arrived: with that information Cyclone drops participant
         # announcements that arrive on an interface it does not use, such as RTI's answers through 127.0.0.1.
         internal = "<ExtendedPacketInfo>false</ExtendedPacketInfo>"

@@ -3,7 +3,8 @@
 Data flow:  every topic of the system (automotive.tools.flows; --topics to choose), each read with the reader side of
 its writer's QoS profile keeping only the newest sample  -->  serialized samples, never deserialized
 (automotive.wire.rawsample)  -->  one Foxglove channel per topic (message encoding ``cdr``, the recorder's schemas)  -->
-the Foxglove WebSocket server (foxglove-sdk) on ws://HOST:PORT
+the Foxglove WebSocket server (foxglove-sdk, on a private loopback port)  -->  a front on ws://HOST:PORT that also
+accepts the protocol's older subprotocol name (automotive.tools.wsrelay)
 
 Open it in Foxglove with "Open connection" > "Foxglove WebSocket" > ws://127.0.0.1:8765. The LiDAR cloud shows in
 the 3D panel, every other flow in the Raw Messages and Plot panels. A viewer must never slow the databus: its readers
@@ -25,6 +26,7 @@ from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
 from automotive.bus.stats import Every
 from automotive.tools.flows import Flow, channel_metadata, select, system_flows
+from automotive.tools.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, SubprotocolRelay
 from automotive.wire.rawsample import RawReader, SampleKind
 
 TAKE_LIMIT = 16
@@ -65,14 +67,22 @@ def body(app: Application) -> None:
     readers = [(flow.topic, RawReader(app.bus.reader(flow.topic, flow.data_type, flow.profile,
                                                      overrides=(Policy.History.KeepLast(1),))),
                 foxglove_channel(app, flow)) for flow in flows]
+    # The SDK's server on a private loopback port, behind a front on --host/--port that also accepts the older
+    # subprotocol name (automotive.tools.wsrelay).
     try:
-        server = foxglove.start_server(name="automotive databus", host=app.args.host, port=port,
+        server = foxglove.start_server(name="automotive databus", host="127.0.0.1", port=0,
                                        message_backlog_size=backlog, server_listener=listener)
-    except Exception as error:  # foxglove-sdk raises its own error types, e.g. when the port is taken
+    except Exception as error:  # foxglove-sdk raises its own error types
+        raise ConfigError(f"cannot start the Foxglove WebSocket server ({error})") from None
+    try:
+        front = SubprotocolRelay(app.args.host, port, server.port, app.log)
+    except OSError as error:  # the port is taken, the address is not this host's, ...
+        server.stop()
         raise ConfigError(f"--host {app.args.host} --port {port}: cannot start the WebSocket server ({error})") \
             from None
-    app.log.info("Foxglove WebSocket server on ws://%s:%d (%d topics, at most %d messages queued per client)",
-                 app.args.host, server.port, len(readers), backlog)
+    app.log.info("Foxglove WebSocket server on ws://%s:%d (%d topics, at most %d messages queued per client; "
+                 "subprotocol %s or %s)", app.args.host, front.port, len(readers), backlog, SDK_SUBPROTOCOL,
+                 LEGACY_SUBPROTOCOL)
     forwarded = {flow.topic: 0 for flow in flows}
     every_second = Every()
     try:
@@ -86,6 +96,7 @@ def body(app: Application) -> None:
             if every_second.due():
                 app.log.info("forwarded %s; %d subscription(s)", status(forwarded), listener.subscriptions)
     finally:
+        front.stop()
         server.stop()
     app.log.info("forwarded in total %s", status(forwarded))
 
