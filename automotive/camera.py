@@ -12,9 +12,9 @@ Cyclone's serializer, in XCDR1 and XCDR2, both byte orders.
 
 Being the decoder of these samples, the codec also holds them to their type (a writer of another stack may declare
 the frame differently under the same type name): the sample's length is the header and the image of exactly the
-type's size (a longer one, which Cyclone accepts as an appendable type's extension, is refused), an XCDR2 sample's
-DHEADER says that length, and the stamp is well formed. :class:`FrameReader` reports a frame that breaks this
-(automotive.badsamples) and leaves it out.
+type's size (a longer one, which Cyclone accepts as an appendable type's extension, is refused) and an XCDR2
+sample's DHEADER says that length; then :meth:`FrameCodec.check` wants a well-formed stamp. :class:`FrameReader`
+reports a frame that breaks either (automotive.badsamples) and leaves it out.
 """
 
 from __future__ import annotations
@@ -181,10 +181,12 @@ class FrameCodec:
             if body != _HEADER_FIELDS + self.size:
                 raise BadSampleError(BadSample("DHEADER", str(body), f"{_HEADER_FIELDS + self.size} bytes"))
         id_, sec, nanosec, seqnum = fields.unpack_from(view, offset)
-        problem = timestamp_problem(sec, nanosec, "", "sec_", "nanosec_")
-        if problem is not None:
-            raise BadSampleError(problem)
         return Frame(id_, sec, nanosec, seqnum, view[start:start + self.size])
+
+    @staticmethod
+    def check(frame: Frame) -> BadSample | None:
+        """The rule a decoded frame must follow: a well-formed stamp (automotive.validation's timestamp rule)."""
+        return timestamp_problem(frame.sec_, frame.nanosec_, "", "sec_", "nanosec_")
 
 
 class FrameWriter:
@@ -318,6 +320,11 @@ class FrameReader:
                     continue
                 except Exception as error:  # any frame another writer sends: never out of the take
                     self.report(undecodable(error, f"a {self.codec.data_type.__name__} frame"), sample.writer)
+                    continue
+                problem = self.codec.check(frame)
+                if problem is not None:
+                    frame.data.release()
+                    self.report(problem, sample.writer)
                     continue
                 frame.writer = sample.writer
                 frames.append(frame)
