@@ -9,8 +9,10 @@
 //   fastdds_peer write Circle --color C --x X --y Y --size S [--domain N] [--count N] [--period-ms MS]
 //       A Shapes Demo circle (ShapeType) with Fast DDS's default writer QoS, written every MS ms (100).
 //   fastdds_peer hostile TOPIC --kind KIND [--domain N] [--count N] [--period-ms MS]
-//       Valid CDR but nonsense, for the tests of tests/test_hostile_samples.py: once a reader matched, writes N
-//       samples (20) of one kind every MS ms (100), prints "hostile: N written", then stays until stopped. KIND:
+//       Valid CDR but nonsense, for the tests of tests/test_hostile_samples.py: once a reader matched, writes
+//       samples of one kind every MS ms (100): N of them (0: until stopped; as the reader may not know this writer
+//       yet when it matched, a test waits for the reader's report instead), then prints "hostile: N written" and
+//       stays until stopped. KIND:
 //         PlatformControl, PlatformStatus: enum (blinkerStatus 99), nan, inf (float members), bad-ns (timestamp
 //           nanoseconds 2e9); SensorObjects, VisionTopic: enum (classification 99), nan (size[1] NaN), many (the
 //           bound's number of objects), empty; Circle: huge, zero, negative (shapesize), far (x 10^6);
@@ -810,11 +812,11 @@ int write_hostile(DomainParticipant* participant, const Options& options)
         }
         std::this_thread::sleep_for(std::chrono::milliseconds(10));
     }
-    uint32_t count = options.count > 0 ? options.count : 20;
-    print_line("writing " + std::to_string(count) + " hostile sample(s) of kind " + options.kind + " on " +
-               topic_name + " as " + type.get_type_name());
+    uint32_t count = options.count;
+    print_line("writing " + (count ? std::to_string(count) : std::string("until stopped")) + " hostile sample(s) of"
+               " kind " + options.kind + " on " + topic_name + " as " + type.get_type_name());
     uint32_t written = 0;
-    for (; !stop_requested && written < count; ++written) {
+    for (; !stop_requested && (count == 0 || written < count); ++written) {
         std::shared_ptr<void> sample = hostile.make();
         if (!writer->write(sample.get())) {
             print_line("hostile: write failed");
@@ -823,7 +825,9 @@ int write_hostile(DomainParticipant* participant, const Options& options)
             std::this_thread::sleep_for(std::chrono::milliseconds(10));
         }
     }
-    print_line("hostile: " + std::to_string(written) + " written");
+    if (!stop_requested) {
+        print_line("hostile: " + std::to_string(written) + " written");
+    }
     while (!stop_requested) {  // stay: the test stops it once it has seen what it waits for
         std::this_thread::sleep_for(std::chrono::milliseconds(20));
     }
