@@ -33,6 +33,7 @@ from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, Sample
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
+from automotive import badsamples, cyclonelog
 from automotive.bounds import BoundError
 from automotive.cli import ArgumentParser
 from automotive.endpoints import Databus
@@ -107,12 +108,18 @@ class Application:
         # After this many seconds, endpoints that matched nothing are reported: the sign of a wrong peer list,
         # domain id or QoS (0 turns the report off).
         self.match_report_s = props.get_float("config.matchReport", 10.0, minimum=0)
+        # Bad samples from the bus: one line per topic and kind, then a count every config.badSampleReport seconds.
+        self.reporter = badsamples.configure(log, props.get_float("config.badSampleReport",
+                                                                  badsamples.DEFAULT_INTERVAL_S, minimum=0.1))
+        if not cyclonelog.install(self.reporter):
+            log.info("Cyclone's log sink is not reachable: samples Cyclone drops are logged by Cyclone, one line each")
         self.network = self._network_config()
         if self.network is None:
             log.info("network: CYCLONEDDS_URI from the environment")
         else:
             log.info("network: %s", self.network.describe())
-        self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, self.instance_name)
+        self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, self.instance_name,
+                           self.reporter)
         self.guard = GuardCondition(self.bus.participant)
         self._ready = False
         self.iterations = 0
@@ -226,6 +233,8 @@ class Application:
 
     def close(self) -> None:
         self.bus.close()
+        cyclonelog.uninstall()
+        self.reporter.close()  # what is still counted is said now
 
 
 def setup_logging(name: str) -> logging.Logger:

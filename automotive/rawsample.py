@@ -37,6 +37,9 @@ from cyclonedds.core import DDSException, InstanceState, SampleState, ViewState
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
+from automotive import badsamples
+from automotive.checkedreader import WriterNames, type_name, undecodable
+
 ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
 Buffer = bytes | bytearray | memoryview
 
@@ -174,6 +177,7 @@ class RawReader:
         self.data_type.__idl__.populate()  # Cyclone Python works out a type's keys on first use
         self._keyless = bool(self.data_type.__idl__.keyless)
         self._access = _serdata() if zero_copy else None
+        self._writer_names = WriterNames(reader)
 
     @property
     def zero_copy(self) -> bool:
@@ -188,7 +192,13 @@ class RawReader:
         stamp, writer, instance, state = (info.source_timestamp, _handle(info.publication_handle),
                                           _handle(info.instance_handle), info.instance_state)
         if not info.valid_data:
-            key = key_to_sample(self.data_type, data) if data or self._keyless else b""
+            try:
+                key = key_to_sample(self.data_type, data) if data or self._keyless else b""
+            except Exception as error:  # a key our types cannot hold (a string that is not UTF-8): reported, skipped
+                problem = undecodable(error, f"a key that decodes as {type_name(self.data_type)}")
+                reporter = getattr(self.reader, "reporter", None) or badsamples.reporter()
+                reporter.report(self.reader.topic.get_name(), problem, self._writer_names.describe(writer))
+                return []
             return [RawSample(key, _state_change(state), stamp, writer, instance, state)]
         samples = [RawSample(data, SampleKind.DATA, stamp, writer, instance, state)]
         if state != InstanceState.Alive and info.sample_rank == 0:
