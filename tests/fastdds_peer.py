@@ -7,6 +7,7 @@ build/fastdds/, and rebuilt only when a source changed. Its samples come back as
     peer = FastDdsPeer.read(apps, ["VisionTopic", "AlertTopic"], domain_id, count=3)
     samples = peer.wait_samples("VisionTopic", 3)      # dicts, member names as in the IDL
     circle = FastDdsPeer.write_circle(apps, domain_id, "ORANGE", 216, 135, 60)
+    hostile = FastDdsPeer.hostile(apps, "PlatformControl", "enum", domain_id)   # valid CDR, nonsense, until stopped
 
 Octet arrays and sequences arrive as {"size", "crc32"} (zlib's CRC-32), with "base64" too when read with data=True.
 """
@@ -72,6 +73,21 @@ class FastDdsPeer:
         command = [str(build()), "write", "Circle", "--domain", str(domain_id), "--color", color,
                    "--x", str(x), "--y", str(y), "--size", str(size)]
         return cls(apps.start_command("fastdds-writer", command + _range(participants)))
+
+    @classmethod
+    def hostile(cls, apps: Any, topic: str, kind: str, domain_id: int, count: int = 0, period_ms: int = 20
+                ) -> FastDdsPeer:
+        """Once a reader matched, samples of one hostile kind on ``topic`` every ``period_ms`` (``count`` of them; 0:
+        until stopped), see fastdds_peer.cpp: enum, nan, inf, bad-ns, many, empty, huge, zero, negative, far,
+        mismatch, noxyz, short, long. A reader that matched may not know the writer yet (discovery is not symmetric):
+        wait for what the application reports, not for the peer's writes."""
+        command = [str(build()), "hostile", topic, "--kind", kind, "--domain", str(domain_id), "--count", str(count),
+                   "--period-ms", str(period_ms)]
+        return cls(apps.start_command(f"fastdds-hostile-{kind}", command))
+
+    def wait_written(self, timeout: float = 60.0) -> None:
+        """Wait until a hostile writer wrote all its samples."""
+        self.process.wait_for(r"^hostile: \d+ written$", timeout)
 
     def wait_matched(self, topic: str, what: str = "writer", timeout: float = 60.0) -> None:
         self.process.wait_for(rf"^matched: [1-9]\d* {what}\(s\) on {re.escape(topic)}$", timeout)

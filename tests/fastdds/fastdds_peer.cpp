@@ -8,7 +8,18 @@
 //       (zlib's CRC-32), plus "base64" with --data. Ends after N samples of every topic (0: until stopped).
 //   fastdds_peer write Circle --color C --x X --y Y --size S [--domain N] [--count N] [--period-ms MS]
 //       A Shapes Demo circle (ShapeType) with Fast DDS's default writer QoS, written every MS ms (100).
-//   Both: --participants N (participant ids probed on 127.0.0.1; without it Fast DDS's default, 4),
+//   fastdds_peer hostile TOPIC --kind KIND [--domain N] [--count N] [--period-ms MS]
+//       Valid CDR but nonsense, for the tests of tests/test_hostile_samples.py: once a reader matched, writes
+//       samples of one kind every MS ms (100): N of them (0: until stopped; as the reader may not know this writer
+//       yet when it matched, a test waits for the reader's report instead), then prints "hostile: N written" and
+//       stays until stopped. KIND:
+//         PlatformControl, PlatformStatus: enum (blinkerStatus 99), nan, inf (float members), bad-ns (timestamp
+//           nanoseconds 2e9); SensorObjects, VisionTopic: enum (classification 99), nan (size[1] NaN), many (the
+//           bound's number of objects), empty; Circle: huge, zero, negative (shapesize), far (x 10^6);
+//         rt/LidarTopic: mismatch (width and data length disagree), noxyz (fields i, j, k);
+//         CameraImageData: short, long (a frame of 1 KiB, or 64 KiB + 1 KiB, under the 64 KiB frame's type name).
+//       Writer QoS: Fast DDS's defaults with a deadline of 1 s (our readers request 11 s or more).
+//   All: --participants N (participant ids probed on 127.0.0.1; without it Fast DDS's default, 4),
 //         --socket-buffer BYTES (UDP send and receive buffers, 4 MiB; 0: the system's default).
 //
 // QoS "default" is Fast DDS's default DataReaderQos; "rviz2" is what RViz2 asks for a point cloud: reliable,
@@ -407,6 +418,7 @@ struct Options
     uint32_t count = 0;
     std::string qos = "default";
     std::string color = "BLUE";
+    std::string kind;
     int32_t x = 120, y = 135, size = 30;
     uint32_t period_ms = 100;
     uint32_t participants = DEFAULT_PARTICIPANTS;
@@ -425,9 +437,11 @@ uint32_t number(const std::string& option, const char* text)
 
 Options parse(int argc, char** argv)
 {
-    if (argc < 3 || (std::strcmp(argv[1], "read") != 0 && std::strcmp(argv[1], "write") != 0)) {
+    if (argc < 3 || (std::strcmp(argv[1], "read") != 0 && std::strcmp(argv[1], "write") != 0
+                     && std::strcmp(argv[1], "hostile") != 0)) {
         usage_error("usage: fastdds_peer read TOPIC [TOPIC...] [--domain N] [--count N] [--qos default|rviz2] [--data]"
-                    " | write Circle --color C --x X --y Y --size S [--domain N] [--count N] [--period-ms MS];"
+                    " | write Circle --color C --x X --y Y --size S [--domain N] [--count N] [--period-ms MS]"
+                    " | hostile TOPIC --kind KIND [--domain N] [--count N] [--period-ms MS];"
                     " both: [--participants N] [--socket-buffer BYTES]");
     }
     Options options;
@@ -454,6 +468,7 @@ Options parse(int argc, char** argv)
         else if (arg == "--count") options.count = number(arg, value);
         else if (arg == "--qos") options.qos = value;
         else if (arg == "--color") options.color = value;
+        else if (arg == "--kind") options.kind = value;
         else if (arg == "--x") options.x = static_cast<int32_t>(number(arg, value));
         else if (arg == "--y") options.y = static_cast<int32_t>(number(arg, value));
         else if (arg == "--size") options.size = static_cast<int32_t>(number(arg, value));
@@ -470,6 +485,9 @@ Options parse(int argc, char** argv)
     }
     if (options.command == "write" && (options.topics.size() != 1 || options.topics[0] != "Circle")) {
         usage_error("write: only the topic Circle can be written");
+    }
+    if (options.command == "hostile" && (options.topics.size() != 1 || options.kind.empty())) {
+        usage_error("hostile: one topic and --kind KIND");
     }
     return options;
 }
@@ -558,6 +576,268 @@ int write(DomainParticipant* participant, const Options& options)
     return 0;
 }
 
+
+// ---- hostile samples ---------------------------------------------------------------------------------------------
+
+using Clock = std::chrono::system_clock;
+
+POSIXTimestamp now_stamp()
+{
+    auto ns = std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
+    POSIXTimestamp stamp;
+    stamp.s(static_cast<int32_t>(ns / 1000000000));
+    stamp.ns(static_cast<int32_t>(ns % 1000000000));
+    return stamp;
+}
+
+const float NOT_A_NUMBER = std::nanf("");
+const float INFINITE = HUGE_VALF;
+
+// A sample of one hostile kind: its type support (registered under the wire name) and a function making the sample.
+struct HostileKind
+{
+    std::function<TypeSupport()> type_support;
+    std::string type_name;  // empty: the type's own name
+    std::function<std::shared_ptr<void>()> make;
+};
+
+template <typename Sample>
+std::function<std::shared_ptr<void>()> maker(std::function<void(Sample&)> spoil)
+{
+    return [spoil] {
+        auto sample = std::make_shared<Sample>();
+        spoil(*sample);
+        return std::static_pointer_cast<void>(sample);
+    };
+}
+
+Sensor::SensorObject sensor_object()
+{
+    Sensor::SensorObject object;
+    object.classification(CLASSIFICATION_CAR);
+    object.position({1.0f, 2.0f, 0.0f});
+    object.velocity({0.5f, 0.0f, 0.0f});
+    object.size({4.0f, 1.5f, 1.75f});
+    return object;
+}
+
+Vision::VisionObject vision_object()
+{
+    Vision::VisionObject object;
+    object.classification(CLASSIFICATION_CAR);
+    object.position({1.0f, 2.0f, 0.0f});
+    object.velocity({0.5f, 0.0f, 0.0f});
+    object.size({4.0f, 1.5f, 1.75f});
+    return object;
+}
+
+sensor_msgs::msg::dds_::PointField_ point_field(const std::string& name, uint32_t offset)
+{
+    sensor_msgs::msg::dds_::PointField_ field;
+    field.name_(name);
+    field.offset_(offset);
+    field.datatype_(7);  // FLOAT32
+    field.count_(1);
+    return field;
+}
+
+sensor_msgs::msg::dds_::PointCloud2_ point_cloud(const std::vector<std::string>& names, uint32_t width,
+                                                 size_t data_bytes)
+{
+    sensor_msgs::msg::dds_::PointCloud2_ cloud;
+    auto ns = std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
+    cloud.header_().stamp_().sec_(static_cast<int32_t>(ns / 1000000000));
+    cloud.header_().stamp_().nanosec_(static_cast<uint32_t>(ns % 1000000000));
+    cloud.header_().frame_id_("map");
+    std::vector<sensor_msgs::msg::dds_::PointField_> fields;
+    for (size_t i = 0; i < names.size(); ++i) {
+        fields.push_back(point_field(names[i], static_cast<uint32_t>(4 * i)));
+    }
+    cloud.fields_(fields);
+    cloud.height_(1);
+    cloud.width_(width);
+    cloud.point_step_(16);
+    cloud.row_step_(16 * width);
+    cloud.data_(std::vector<uint8_t>(data_bytes, 0));
+    cloud.is_dense_(true);
+    return cloud;
+}
+
+template <typename Frame>
+std::function<std::shared_ptr<void>()> frame_maker()
+{
+    return maker<Frame>([](Frame& frame) {
+        POSIXTimestamp stamp = now_stamp();
+        frame.id(1);
+        frame.sec_(stamp.s());
+        frame.nanosec_(static_cast<uint32_t>(stamp.ns()));
+        frame.seqnum(1);
+    });
+}
+
+const std::map<std::string, std::map<std::string, HostileKind>>& hostile_kinds()
+{
+    using namespace Platform;
+    auto control = [] { return TypeSupport(new PlatformControlPubSubType()); };
+    auto status = [] { return TypeSupport(new PlatformStatusPubSubType()); };
+    auto objects = [] { return TypeSupport(new Sensor::SensorObjectListPubSubType()); };
+    auto vision = [] { return TypeSupport(new Vision::VisionSensorPubSubType()); };
+    auto shape = [] { return TypeSupport(new ShapeTypePubSubType()); };
+    auto cloud = [] { return TypeSupport(new sensor_msgs::msg::dds_::PointCloud2_PubSubType()); };
+    auto control_with = [](std::function<void(PlatformControl&)> spoil) {
+        return maker<PlatformControl>([spoil](PlatformControl& c) {
+            c.sample_id(1);
+            c.timestamp(now_stamp());
+            c.speed(1.5f);
+            spoil(c);
+        });
+    };
+    auto status_with = [](std::function<void(PlatformStatus&)> spoil) {
+        return maker<PlatformStatus>([spoil](PlatformStatus& s) {
+            s.timestamp(now_stamp());
+            s.vehSpd(50.0f);
+            spoil(s);
+        });
+    };
+    auto objects_with = [](std::function<void(Sensor::SensorObjectList&)> spoil) {
+        return maker<Sensor::SensorObjectList>([spoil](Sensor::SensorObjectList& l) {
+            l.timestamp(now_stamp());
+            l.objects({sensor_object()});
+            spoil(l);
+        });
+    };
+    auto vision_with = [](std::function<void(Vision::VisionSensor&)> spoil) {
+        return maker<Vision::VisionSensor>([spoil](Vision::VisionSensor& v) {
+            v.id(66);
+            v.timestamp(now_stamp());
+            v.objects({vision_object()});
+            spoil(v);
+        });
+    };
+    auto shape_with = [](int32_t x, int32_t size) {
+        return maker<ShapeType>([x, size](ShapeType& s) {
+            s.color("HOSTILE");
+            s.x(x);
+            s.y(135);
+            s.shapesize(size);
+        });
+    };
+    static const std::map<std::string, std::map<std::string, HostileKind>> kinds = {
+        {"PlatformControl", {
+            {"enum", {control, "", control_with([](PlatformControl& c) {
+                c.blinkerStatus(static_cast<IndicatorStatusEnum>(99)); })}},
+            {"nan", {control, "", control_with([](PlatformControl& c) { c.speed(NOT_A_NUMBER); })}},
+            {"inf", {control, "", control_with([](PlatformControl& c) { c.vehicleSteerAngle(INFINITE); })}},
+            {"bad-ns", {control, "", control_with([](PlatformControl& c) { c.timestamp().ns(2000000000); })}},
+        }},
+        {"PlatformStatus", {
+            {"enum", {status, "", status_with([](PlatformStatus& s) {
+                s.blinkerStatus(static_cast<IndicatorStatusEnum>(99)); })}},
+            {"nan", {status, "", status_with([](PlatformStatus& s) { s.vehSpd(NOT_A_NUMBER); })}},
+            {"inf", {status, "", status_with([](PlatformStatus& s) { s.yawRate(-INFINITE); })}},
+            {"bad-ns", {status, "", status_with([](PlatformStatus& s) { s.timestamp().ns(-1); })}},
+        }},
+        {"SensorObjects", {
+            {"enum", {objects, "", objects_with([](Sensor::SensorObjectList& l) {
+                l.objects()[0].classification(static_cast<ClassificationEnum>(99)); })}},
+            {"nan", {objects, "", objects_with([](Sensor::SensorObjectList& l) {
+                l.objects()[0].size()[1] = NOT_A_NUMBER; })}},
+            {"many", {objects, "", objects_with([](Sensor::SensorObjectList& l) {
+                l.objects(std::vector<Sensor::SensorObject>(Sensor::SENSOR_OBJECT_LIST_MAX_SIZE, sensor_object()));
+            })}},
+            {"empty", {objects, "", objects_with([](Sensor::SensorObjectList& l) { l.objects().clear(); })}},
+        }},
+        {"VisionTopic", {
+            {"enum", {vision, "", vision_with([](Vision::VisionSensor& v) {
+                v.objects()[0].classification(static_cast<ClassificationEnum>(99)); })}},
+            {"nan", {vision, "", vision_with([](Vision::VisionSensor& v) { v.objects()[0].size()[1] = NOT_A_NUMBER; })}},
+            {"many", {vision, "", vision_with([](Vision::VisionSensor& v) {
+                v.objects(std::vector<Vision::VisionObject>(Vision::VISION_OBJECT_LIST_MAX_SIZE, vision_object()));
+            })}},
+            {"empty", {vision, "", vision_with([](Vision::VisionSensor& v) { v.objects().clear(); })}},
+        }},
+        {"Circle", {
+            {"huge", {shape, "", shape_with(120, 2000000000)}},
+            {"zero", {shape, "", shape_with(120, 0)}},
+            {"negative", {shape, "", shape_with(120, -30)}},
+            {"far", {shape, "", shape_with(1000000, 30)}},
+        }},
+        {"rt/LidarTopic", {
+            {"mismatch", {cloud, "", maker<sensor_msgs::msg::dds_::PointCloud2_>(
+                [](sensor_msgs::msg::dds_::PointCloud2_& c) { c = point_cloud({"x", "y", "z", "rgb"}, 1000, 16); })}},
+            {"noxyz", {cloud, "", maker<sensor_msgs::msg::dds_::PointCloud2_>(
+                [](sensor_msgs::msg::dds_::PointCloud2_& c) { c = point_cloud({"i", "j", "k"}, 4, 64); })}},
+        }},
+        {"CameraImageData", {
+            {"short", {[] { return TypeSupport(new Hostile::ShortFramePubSubType()); },
+                       "CameraImage::CameraImageData_64KiB", frame_maker<Hostile::ShortFrame>()}},
+            {"long", {[] { return TypeSupport(new Hostile::LongFramePubSubType()); },
+                      "CameraImage::CameraImageData_64KiB", frame_maker<Hostile::LongFrame>()}},
+        }},
+    };
+    return kinds;
+}
+
+int write_hostile(DomainParticipant* participant, const Options& options)
+{
+    const std::string& topic_name = options.topics[0];
+    const auto& kinds = hostile_kinds();
+    auto by_topic = kinds.find(topic_name);
+    if (by_topic == kinds.end()) {
+        usage_error("hostile: no hostile kinds for topic '" + topic_name + "'");
+    }
+    auto found = by_topic->second.find(options.kind);
+    if (found == by_topic->second.end()) {
+        std::string known;
+        for (const auto& entry : by_topic->second) {
+            known += (known.empty() ? "" : ", ") + entry.first;
+        }
+        usage_error("hostile: unknown kind '" + options.kind + "' for " + topic_name + " (" + known + ")");
+    }
+    const HostileKind& hostile = found->second;
+    TypeSupport type = hostile.type_support();
+    if (!hostile.type_name.empty()) {
+        type->setName(hostile.type_name.c_str());  // a name-only matcher takes it for the real type
+    }
+    type.register_type(participant);
+    Topic* topic = participant->create_topic(topic_name, type.get_type_name(), TOPIC_QOS_DEFAULT);
+    Publisher* publisher = participant->create_publisher(PUBLISHER_QOS_DEFAULT);
+    MatchReporter listener(topic_name);
+    DataWriterQos qos = publisher->get_default_datawriter_qos();
+    qos.deadline().period = eprosima::fastrtps::Duration_t(1, 0);  // our readers request a deadline of 11 s
+    DataWriter* writer = publisher->create_datawriter(topic, qos, &listener);
+    // Samples written before a reader matched would reach no one: wait for one (60 s at most).
+    PublicationMatchedStatus matched;
+    for (int waited = 0; !stop_requested && waited < 6000; ++waited) {
+        writer->get_publication_matched_status(matched);
+        if (matched.current_count > 0) {
+            break;
+        }
+        std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    uint32_t count = options.count;
+    print_line("writing " + (count ? std::to_string(count) : std::string("until stopped")) + " hostile sample(s) of"
+               " kind " + options.kind + " on " + topic_name + " as " + type.get_type_name());
+    uint32_t written = 0;
+    for (; !stop_requested && (count == 0 || written < count); ++written) {
+        std::shared_ptr<void> sample = hostile.make();
+        if (!writer->write(sample.get())) {
+            print_line("hostile: write failed");
+        }
+        for (uint32_t waited = 0; waited < options.period_ms && !stop_requested; waited += 10) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(10));
+        }
+    }
+    if (!stop_requested) {
+        print_line("hostile: " + std::to_string(written) + " written");
+    }
+    while (!stop_requested) {  // stay: the test stops it once it has seen what it waits for
+        std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    participant->delete_contained_entities();
+    return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv)
@@ -566,7 +846,8 @@ int main(int argc, char** argv)
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
     DomainParticipant* participant = create_participant(options.domain, options.participants, options.socket_buffer);
-    int code = options.command == "read" ? read(participant, options) : write(participant, options);
+    int code = options.command == "read" ? read(participant, options)
+               : options.command == "write" ? write(participant, options) : write_hostile(participant, options);
     DomainParticipantFactory::get_instance()->delete_participant(participant);
     return code;
 }

@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,6 +23,7 @@ from typing import Any
 from cyclonedds.core import GuardCondition, WaitSet
 
 from automotive.bus.app import Application, run
+from automotive.bus.badsamples import BadSample
 from automotive.bus.errors import ConfigError
 from automotive.bus.stats import Every, Stats
 from automotive.sim.lfsr import FramePattern
@@ -81,7 +82,10 @@ class CameraStats:
     latencies_ns: list[int] = field(default_factory=list)
     last_seqnum: dict[int, int] = field(default_factory=dict)
 
-    def received(self, frame: Frame, receive_ns: int, log: Any, pattern: FramePattern) -> None:
+    def received(self, frame: Frame, receive_ns: int, log: Any, pattern: FramePattern,
+                 mismatch: Callable[[Frame, int], None] | None = None) -> None:
+        """Count a frame; ``mismatch(frame, wrong_bytes)`` reports one that differs from the pattern (default: a log
+        line)."""
         latency = receive_ns - frame.timestamp_ns
         if self.first_receive_ns is None:
             self.first_receive_ns = receive_ns
@@ -92,8 +96,11 @@ class CameraStats:
             window.add(len(frame.data), latency)
         if not pattern.matches(frame.seqnum, frame.data):
             wrong = pattern.mismatched_bytes(frame.seqnum, frame.data)
-            log.warning("frame %d of camera %d: %d of %d bytes differ from the pattern", frame.seqnum, frame.id,
-                        wrong, self.size)
+            if mismatch is not None:
+                mismatch(frame, wrong)
+            else:
+                log.warning("frame %d of camera %d: %d of %d bytes differ from the pattern", frame.seqnum, frame.id,
+                            wrong, self.size)
             for window in (self.window, self.total):
                 window.mismatches += 1
                 window.mismatched_bytes += wrong
@@ -273,6 +280,16 @@ def dds_wake_ups(app: Application, waitset: WaitSet, publisher_left: GuardCondit
 
 def view(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups: Iterator[bool],
          pattern: FramePattern, stats: CameraStats) -> None:
+    mismatch = None
+    if isinstance(frames, FrameReader):
+        reader = frames
+
+        def mismatch(frame: Frame, wrong: int) -> None:
+            # Another writer's frames may all differ: one line per interval, the per-second lines count them all.
+            reader.report(BadSample("data", f"frame {frame.seqnum} of camera {frame.id}: {wrong} of {stats.size} "
+                                    "bytes differ", "the publisher's LFSR pattern for the frame's seqnum"),
+                          frame.writer, action="counted as a mismatch")
+
     for leaving in wake_ups:
         while app.running:  # take until the reader is empty
             with frames.take(TAKE_LIMIT) as batch:  # the frames' data are views, valid inside this block
@@ -280,7 +297,7 @@ def view(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups
                     break
                 receive_ns = time.time_ns()
                 for frame in batch:
-                    stats.received(frame, receive_ns, app.log, pattern)
+                    stats.received(frame, receive_ns, app.log, pattern, mismatch)
                     app.tick()
                     if not app.running:
                         break

@@ -118,7 +118,7 @@ def body(app: Application) -> None:
         status_count += len(status_reader.take(N=1000))  # read, and otherwise ignored, as in the original
         commands.follow_owner()
         taken = [objects for objects in objects_reader.take(N=100) if isinstance(objects, SensorObjectList)]
-        lists = stall_guard.fresh(taken, "object list(s)")
+        lists = stall_guard.fresh(taken, "object list(s)", objects_reader)
         if stall_guard.stalled:
             commands.step_down(taken[-1])
         for objects in lists:

@@ -19,12 +19,18 @@ from cyclonedds.core import InstanceState
 from cyclonedds.sub import DataReader
 
 from automotive.bus.app import Application, run
+from automotive.bus.badsamples import BadSample
+from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.clock import now_seconds_nanoseconds
 from automotive.bus.errors import ConfigError
 from automotive.sim.scene import LidarScene, ScanGrid
 from automotive.types.automotive import ShapeType
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.wire.pointcloud import FRAME_ID
+
+# Each circle costs a ray-casting step per frame: a writer inventing colours must not make frames slower without end
+# (Shapes Demo has eight colours). A circle beyond this many is reported and left out until one leaves.
+MAX_SHAPES = 32
 
 GONE_STATES = {
     InstanceState.NotAliveDisposed: "disposed",
@@ -58,9 +64,10 @@ def scan_grid(app: Application) -> ScanGrid:
 class ShapeTracker:
     """Applies the Circle samples of one take to the scene: valid data moves a shape, a gone instance removes it."""
 
-    def __init__(self, scene: LidarScene, app: Application):
+    def __init__(self, scene: LidarScene, app: Application, reader: CheckedReader[ShapeType] | None = None):
         self.scene = scene
         self.log = app.log
+        self.reader = reader  # reports circles over MAX_SHAPES
         self.colors: dict[int, str] = {}  # instance handle -> colour, for samples without a usable key
 
     def apply(self, samples: list[Any]) -> None:
@@ -68,6 +75,11 @@ class ShapeTracker:
             info = sample.sample_info
             if info.valid_data:
                 color = sample.color
+                if color not in self.scene.shape_colors and len(self.scene.shape_colors) >= MAX_SHAPES:
+                    if self.reader is not None:
+                        self.reader.report(BadSample("color", repr(color), f"one of at most {MAX_SHAPES} circles "
+                                                     "(the scene is full)"), info)
+                    continue
                 self.colors[info.instance_handle] = color
                 if color not in self.scene.shape_colors:
                     self.log.info("shape %s appeared at (%d, %d), size %d", color, sample.x, sample.y,
@@ -103,7 +115,7 @@ def body(app: Application) -> None:
     scene = LidarScene(grid, noise_m=noise_m)
     writer = app.writer("Lidar", PointCloud2_, "rt/LidarTopic")
     circles = app.reader("Shapes", ShapeType, "Circle")
-    tracker = ShapeTracker(scene, app)
+    tracker = ShapeTracker(scene, app, circles if isinstance(circles, CheckedReader) else None)
     app.log.info("lidar: %d azimuth x %d polar steps, %d points, %d bytes a cloud, every %g ms",
                  grid.width, grid.height, grid.point_count, grid.sample_bytes, interval_ms)
 

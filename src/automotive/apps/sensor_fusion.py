@@ -69,7 +69,7 @@ def body(app: Application) -> None:
     for _ in app.wake_ups(waitset, timeout_s=interval_s if mode == "periodic" else 1.0):
         log_lidar_stamps(app, lidar)
         pending.extend(stall_guard.fresh([s for s in vision.take(N=1000) if isinstance(s, VisionSensor)],
-                                         "vision sample(s)"))
+                                         "vision sample(s)", vision))
         if mode == "periodic":
             if time.monotonic() < next_publish:
                 continue

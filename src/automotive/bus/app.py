@@ -36,6 +36,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
 from automotive import config, cyclone
+from automotive.bus import badsamples, cyclonelog
 from automotive.bus.cli import (
     EXIT_BAD_INPUT,
     ArgumentParser,
@@ -113,13 +114,18 @@ class Application:
         # domain id or QoS (0 turns the report off).
         self.match_report_s = props.get_float("config.matchReport", 10.0, minimum=0)
         self.stats = Stats(getattr(args, "stats", None), self.instance_name)
+        # Bad samples from the bus: one line per topic and kind, then a count every config.badSampleReport seconds.
+        self.reporter = badsamples.configure(log, props.get_float("config.badSampleReport",
+                                                                  badsamples.DEFAULT_INTERVAL_S, minimum=0.1))
+        if not cyclonelog.install(self.reporter):
+            log.info("Cyclone's log sink is not reachable: samples Cyclone drops are logged by Cyclone, one line each")
         self.network = self._network_config()
         if self.network is None:
             log.info("network: CYCLONEDDS_URI from the environment")
         else:
             log.info("network: %s", self.network.describe())
         self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, self.instance_name,
-                           self.stats)
+                           self.stats, self.reporter)
         self.guard = GuardCondition(self.bus.participant)
         self._ready = False
         self.iterations = 0
@@ -234,6 +240,8 @@ class Application:
 
     def close(self) -> None:
         self.bus.close()
+        cyclonelog.uninstall()
+        self.reporter.close()  # what is still counted is said now
         self.stats.close()
 
 

@@ -1,7 +1,9 @@
 """Participant, topics, publisher/subscriber, writers and readers created from (library, profile) QoS pairs.
 
 This is what the original applications do with create_..._with_profile; every endpoint gets the shared status
-listener, so its DDS events are reported with its topic name.
+listener, so its DDS events are reported with its topic name. Every reader is a CheckedReader: its take hands the
+application only samples that decode and pass their type's checks, and reports the others
+(automotive.bus.checkedreader).
 """
 
 from __future__ import annotations
@@ -16,6 +18,8 @@ from cyclonedds.qos import DataReaderQos, DataWriterQos, Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
+from automotive.bus.badsamples import BadSampleReporter
+from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.errors import ConfigError
 from automotive.bus.network import NetworkConfig, user_uri
 from automotive.bus.qos import QosProfiles
@@ -38,9 +42,11 @@ class Databus:
     """One participant of one application, with its endpoints."""
 
     def __init__(self, domain_id: int, profiles: QosProfiles, library: str, log: logging.Logger,
-                 network: NetworkConfig | None = None, name: str = "automotive", stats: Stats | None = None):
+                 network: NetworkConfig | None = None, name: str = "automotive", stats: Stats | None = None,
+                 reporter: BadSampleReporter | None = None):
         self.name = name
         self.stats = stats or Stats(None, name)
+        self.reporter = reporter  # of bad samples; None: the process's (automotive.bus.badsamples)
         self.domain_id = domain_id
         self.profiles = profiles
         self.library = library
@@ -106,7 +112,9 @@ class Databus:
             qos = DataReaderQos(*overrides, base=qos)
         topic = self.topic(topic_name, data_type)
         exclusive = Policy.Ownership.Exclusive in qos
-        reader = DataReader(self.subscriber, topic, qos=qos, listener=self._listener(topic_name, hook, exclusive))
+        reader: DataReader[T] = CheckedReader(self.subscriber, topic, qos=qos,
+                                              listener=self._listener(topic_name, hook, exclusive),
+                                              reporter=self.reporter)
         self._endpoints.append(reader)
         return reader
 

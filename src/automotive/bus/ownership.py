@@ -17,6 +17,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy
 from cyclonedds.sub import DataReader
 
+from automotive.bus.badsamples import BadSample
 from automotive.bus.stats import Stats
 
 
@@ -83,6 +84,16 @@ class StallGuard:
     Such input means the instance was stalled (frozen) at least one lease: the readers have followed the other
     instance meanwhile, and that one has answered it; answering it now would publish a stale state. The lease is the
     one of the instance's exclusive writer; for any other writer (the default system) nothing is dropped.
+
+    What "old" and "future" mean here, judged on the writers' source timestamps (the data's own timestamps are not
+    looked at: a replayed recording carries old ones):
+
+    - older than the lease, stamped after this instance started: missed while stalled, dropped (``stalled``);
+    - stamped before this instance started (less the lease): no stall of ours explains it, as its readers are volatile
+      and matched after the start: the writer's clock is wrong (or the writer lies). Reported as a bad sample and
+      dropped, without counting as a stall (which would make collision_avoidance step down);
+    - stamped more than the lease in the future: the clocks disagree by more than the redundant mode allows (README).
+      Reported as a bad sample and dropped.
     """
 
     def __init__(self, writer: DataWriter[Any], log: logging.Logger):
@@ -90,17 +101,40 @@ class StallGuard:
         qos = writer.get_qos()
         exclusive = Policy.Ownership.Exclusive in qos and Policy.Liveliness in qos
         self.max_age_ns: int = qos[Policy.Liveliness].lease_duration if exclusive else 0
-        self.stalled = False  # the last call dropped something
+        self.started_ns = time.time_ns()
+        self.stalled = False  # the last call dropped something it was late for
 
-    def fresh(self, samples: list[T], what: str) -> list[T]:
-        """The samples taken within the lease; one line for those dropped."""
+    def fresh(self, samples: list[T], what: str, reader: Any = None) -> list[T]:
+        """The samples taken within the lease; one line for those dropped. ``reader`` (a CheckedReader) reports the
+        samples whose source timestamp no stall explains."""
         if not self.max_age_ns:
             return samples
         now = time.time_ns()
-        kept = [sample for sample in samples if now - sample.sample_info.source_timestamp <= self.max_age_ns]
-        dropped = len(samples) - len(kept)
-        self.stalled = dropped > 0
-        if dropped:
+        kept = []
+        late = 0
+        for sample in samples:
+            info = sample.sample_info  # type: ignore[attr-defined]
+            age = now - info.source_timestamp
+            if -self.max_age_ns <= age <= self.max_age_ns:
+                kept.append(sample)
+            elif age > 0 and info.source_timestamp >= self.started_ns - self.max_age_ns:
+                late += 1
+            else:
+                self._report(reader, info, age)
+        self.stalled = late > 0
+        if late:
             self.log.warning("skipped %d %s older than the %.0f ms lease: this instance was stalled and the other "
-                             "one answered them", dropped, what, self.max_age_ns / 1e6)
+                             "one answered them", late, what, self.max_age_ns / 1e6)
         return kept
+
+    def _report(self, reader: Any, info: Any, age_ns: int) -> None:
+        if age_ns < 0:
+            problem = BadSample("source timestamp", f"{-age_ns / 1e9:.3f} s in the future",
+                                f"clocks that agree within the {self.max_age_ns / 1e6:.0f} ms lease")
+        else:
+            problem = BadSample("source timestamp", f"{age_ns / 1e9:.3f} s old, before this instance started",
+                                "a sample written since this instance started")
+        if reader is not None and hasattr(reader, "report"):
+            reader.report(problem, info)
+        else:
+            self.log.warning("bad sample ignored: %s", problem.describe())

@@ -13,7 +13,7 @@ from functools import cache
 from typing import Any
 
 from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import array, bounded_str, sequence
+from cyclonedds.idl.types import array, bounded_str, sequence, typedef
 
 from automotive.cyclone import gate
 from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_
@@ -60,7 +60,7 @@ def member_types(cls: type) -> dict[str, Any]:
     resolved = {}
     for name, hint in typing.get_type_hints(cls, include_extras=True).items():
         metadata = getattr(hint, "__metadata__", ())
-        idl_type = next((item for item in metadata if isinstance(item, (sequence, bounded_str, array))), None)
+        idl_type = next((item for item in metadata if isinstance(item, (sequence, bounded_str, array, typedef))), None)
         resolved[name] = idl_type if idl_type is not None else hint
     return resolved
 

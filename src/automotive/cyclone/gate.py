@@ -30,8 +30,9 @@ _OFF_VALUES = ("0", "off", "false", "no")
 
 # (module, attributes) the fast paths use; a missing one closes the gate.
 INTERNALS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("cyclonedds._clayer", ("ddspy_take", "ddspy_write", "ddspy_write_ts", "ddspy_dispose", "ddspy_dispose_ts",
-                            "ddspy_unregister_instance", "ddspy_unregister_instance_ts")),
+    ("cyclonedds._clayer", ("ddspy_take", "ddspy_take_handle", "ddspy_read", "ddspy_read_handle", "ddspy_write",
+                            "ddspy_write_ts", "ddspy_dispose", "ddspy_dispose_ts", "ddspy_unregister_instance",
+                            "ddspy_unregister_instance_ts")),
     ("cyclonedds.internal", ("dds_c_t", "load_cyclonedds")),
     ("cyclonedds.idl._builder", ("Builder",)),
     ("cyclonedds.idl._machinery", ("ByteArrayMachine", "PlainCdrV2SequenceOfPrimitiveMachine", "StructMachine",

@@ -60,6 +60,29 @@ def take(reader: DataReader[Any], limit: int) -> list[Taken]:
     return taken
 
 
+def fetch(reader: DataReader[Any], take: bool, count: int, condition: Any = None,
+          instance_handle: int | None = None) -> list[tuple[bytes, Any]] | None:
+    """The serialized samples (and their infos) a ``DataReader.take`` (or ``read``) with these arguments would
+    deserialize, chosen as it chooses them; None with the gate closed (then only the public take and read remain)."""
+    if not gate.enabled():
+        return None
+    from cyclonedds._clayer import ddspy_read, ddspy_read_handle, ddspy_take, ddspy_take_handle
+    from cyclonedds.core import QueryCondition, ReadCondition
+
+    entity, mask = reader._ref, ANY_STATE
+    if isinstance(condition, ReadCondition):
+        entity, mask = condition.reader._ref, condition.mask
+    elif isinstance(condition, QueryCondition):
+        entity, mask = condition._ref, condition.mask
+    if instance_handle is None:
+        result = (ddspy_take if take else ddspy_read)(entity, mask, count)
+    else:
+        result = (ddspy_take_handle if take else ddspy_read_handle)(entity, mask, count, instance_handle)
+    if isinstance(result, int):
+        raise DDSException(result, f"Occurred while {'taking' if take else 'reading'} data in {reader!r}")
+    return list(result)
+
+
 def _check(writer: DataWriter[Any], result: int | None, doing: str) -> None:
     if result is not None and result < 0:
         raise DDSException(result, f"Occurred while {doing} a serialized sample in {writer!r}")

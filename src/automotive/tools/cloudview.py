@@ -19,6 +19,7 @@ GRID = (48, 48, 58)
 SEPARATOR = (90, 90, 90)
 LABEL = (170, 170, 170)
 RING_SPACING_M = 2.0
+MAX_RINGS = 100  # a cloud of a huge extent (a point thousands of km away) gets wider rings, not millions of them
 _CAMERA_AZIMUTH_DEG = 200.0  # behind the sensor (which looks along +x), a little to its right
 _CAMERA_ELEVATION_DEG = 35.0
 _CAMERA_FOV_DEG = 60.0
@@ -32,8 +33,9 @@ def _splat(image: npt.NDArray[np.uint8], u: npt.NDArray[np.float64], v: npt.NDAr
     if len(depth) == 0:
         return
     order = np.argsort(depth, kind="stable")
-    col = np.rint(u[order]).astype(np.int64)
-    row = np.rint(v[order]).astype(np.int64)
+    # Far points project far off the picture; clipped first, their pixel indexes stay valid integers.
+    col = np.rint(np.clip(u[order], -1e9, 1e9)).astype(np.int64)
+    row = np.rint(np.clip(v[order], -1e9, 1e9)).astype(np.int64)
     colours = rgb[order]
     offsets = np.arange(-radius, radius + 1)
     # (points, offsets^2) pixel coordinates, point-major, so that flattening keeps the nearest-first order.
@@ -48,9 +50,18 @@ def _splat(image: npt.NDArray[np.uint8], u: npt.NDArray[np.float64], v: npt.NDAr
     image[pixel // width, pixel % width] = colours[source[first]]
 
 
+def ring_spacing(extent: float) -> float:
+    """RING_SPACING_M, or a power of ten times it when the region shown would need more than MAX_RINGS rings."""
+    spacing = RING_SPACING_M
+    while extent / spacing > MAX_RINGS:
+        spacing *= 10
+    return spacing
+
+
 def _rings(center: npt.NDArray[np.float64], extent: float) -> npt.NDArray[np.float64]:
-    """Points along ground circles every RING_SPACING_M around the centre, as a faint range scale."""
-    radii = np.arange(RING_SPACING_M, extent + 1e-9, RING_SPACING_M)
+    """Points along ground circles every ring_spacing(extent) around the centre, as a faint range scale."""
+    spacing = ring_spacing(extent)
+    radii = np.arange(spacing, extent + 1e-9, spacing)
     if radii.size == 0:
         return np.empty((0, 3))
     angles = np.linspace(0.0, 2 * math.pi, 720, endpoint=False)
@@ -139,8 +150,10 @@ def render_png(xyz: npt.ArrayLike, rgb: npt.ArrayLike, path: str | Path, size: t
                point_radius: int = 1) -> None:
     """Write :func:`render_image` as a PNG of exactly ``size`` (width, height) pixels."""
     image = Image.fromarray(render_image(xyz, rgb, size, point_radius))
+    points = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    _, half = _extent(points[np.isfinite(points).all(axis=1)])
     draw = ImageDraw.Draw(image)
     draw.text((8, 6), "perspective", fill=LABEL)
-    draw.text((size[0] // 2 + 9, 6), f"top view (x right, y up; rings every {RING_SPACING_M:g} m)", fill=LABEL)
+    draw.text((size[0] // 2 + 9, 6), f"top view (x right, y up; rings every {ring_spacing(half):g} m)", fill=LABEL)
     # Fast compression: these pictures are mostly flat background and are written often.
     image.save(path, format="PNG", compress_level=1)

@@ -25,6 +25,8 @@ import numpy as np
 import numpy.typing as npt
 
 from automotive.bus.app import Application, run
+from automotive.bus.badsamples import BadSample
+from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.errors import ConfigError
 from automotive.tools.cloudview import render_image, render_png
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
@@ -120,7 +122,6 @@ def body(app: Application) -> None:
 
     started = time.monotonic()
     received = 0
-    undecodable: set[str] = set()
     next_view = 0.0
     try:
         for _ in app.wake_ups(app.waitset(reader), timeout_s=0.05 if window else 0.5):
@@ -147,9 +148,11 @@ def body(app: Application) -> None:
                 continue
             try:
                 xyz, rgb = decode_point_cloud2(show)
-            except ValueError as error:
-                if str(error) not in undecodable:  # once per kind of cloud, not once per sample
-                    undecodable.add(str(error))
+            except ValueError as error:  # a valid cloud this view cannot draw (no rgb...): said once per interval
+                problem = BadSample("fields_", str(error), "x, y, z and rgb fields this view can draw")
+                if isinstance(reader, CheckedReader):
+                    reader.report(problem, show.sample_info, action="not shown")
+                else:
                     app.log.warning("cannot show a cloud: %s", error)
                 continue
             if snapshot is not None:

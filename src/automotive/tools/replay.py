@@ -6,8 +6,10 @@ matched to a flow of the system (automotive.tools.flows)  -->  the recorded CDR 
 control allows); disposals and unregistrations replayed as such.
 
 A channel whose topic or schema is not one of the system's is skipped (said once). The replayed samples carry the
-time of their replay as source timestamp, as a live writer's would. At the end, reliable readers get up to 10 s to
-acknowledge the last samples.
+time of their replay as source timestamp, as a live writer's would (their own data timestamps are left as
+recorded). A message Cyclone refuses to write (its bytes are not a valid sample of the type: a file from elsewhere,
+or damaged) is reported once per topic and interval, like a bad sample from the bus, and the replay goes on. At the
+end, reliable readers get up to 10 s to acknowledge the last samples.
 """
 
 from __future__ import annotations
@@ -19,10 +21,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cyclonedds.core import DDSException
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 
 from automotive.bus.app import Application, run
+from automotive.bus.badsamples import BadSample
 from automotive.bus.errors import ConfigError
 from automotive.bus.stats import Every
 from automotive.tools.flows import Flow, select, system_flows
@@ -40,6 +44,7 @@ class Track:
     kind: SampleKind
     writer: RawWriter
     written: int = 0
+    refused: int = 0
 
 
 def open_recording(path: Path) -> tuple[Any, SeekingReader]:
@@ -127,6 +132,9 @@ def body(app: Application) -> None:
             if not writer.writer.wait_for_acks(int(ACK_TIMEOUT_S * 1e9)):
                 app.log.warning("[%s] not every sample acknowledged within %g s", topic, ACK_TIMEOUT_S)
         app.log.info("replayed %d samples: %s", sum(t.written for t in tracks.values()), counts(tracks))
+        refused = sum(t.refused for t in tracks.values())
+        if refused:
+            app.log.warning("%d message(s) not replayed: Cyclone refused them as samples of their type", refused)
     finally:
         stream.close()
 
@@ -171,7 +179,15 @@ def replay_once(app: Application, reader: SeekingReader, tracks: dict[int, Track
                 return
         if not app.running:
             return
-        track.writer.put(RawSample(message.data, track.kind, 0, 0, 0, 0))
+        try:
+            track.writer.put(RawSample(message.data, track.kind, 0, 0, 0, 0))
+        except DDSException as error:  # not a valid sample of the type: said once per interval, then the next one
+            track.refused += 1
+            code = DDSException.error_message_mapping.get(error.code, (str(error.code),))[0]
+            app.reporter.report(track.flow.topic, BadSample("", f"refused by Cyclone's writer ({code})",
+                                                            f"a valid {track.flow.type_name}"),
+                                f"message {message.sequence} of channel {channel.topic}", action="not replayed")
+            continue
         track.written += 1
         app.tick()
         if every_second.due():

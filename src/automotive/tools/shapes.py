@@ -24,9 +24,10 @@ from cyclonedds.core import InstanceState
 
 from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
+from automotive.bus.samplerules import CANVAS_HEIGHT, CANVAS_WIDTH
 from automotive.types.automotive import ShapeType
 
-BOX_WIDTH, BOX_HEIGHT = 240, 270
+BOX_WIDTH, BOX_HEIGHT = CANVAS_WIDTH, CANVAS_HEIGHT
 GONE_STATES = {
     InstanceState.NotAliveDisposed: "disposed",
     InstanceState.NotAliveNoWriters: "no writers left",

@@ -9,6 +9,12 @@ fixed layout the codec writes the CDR stream itself into a buffer allocated once
 sample (``automotive.wire.rawsample``), and on the reading side it parses the 16 header bytes and returns the image as
 a ``memoryview`` of the received buffer, without a copy. ``tests/test_camera.py`` checks that the bytes are those of
 Cyclone's serializer, in XCDR1 and XCDR2, both byte orders.
+
+Being the decoder of these samples, the codec also holds them to their type (a writer of another stack may declare
+the frame differently under the same type name): the sample's length is the header and the image of exactly the
+type's size (a longer one, which Cyclone accepts as an appendable type's extension, is refused) and an XCDR2
+sample's DHEADER says that length; then :meth:`FrameCodec.check` wants a well-formed stamp. :class:`FrameReader`
+reports a frame that breaks either (automotive.bus.badsamples) and leaves it out.
 """
 
 from __future__ import annotations
@@ -26,7 +32,11 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy
 from cyclonedds.sub import DataReader
 
+from automotive.bus import badsamples
+from automotive.bus.badsamples import BadSample, BadSampleError
+from automotive.bus.checkedreader import WriterNames, undecodable
 from automotive.bus.errors import ConfigError
+from automotive.bus.validation import timestamp_problem
 from automotive.types.CameraImage import (
     CameraImageData,
     CameraImageData_1MiB,
@@ -126,6 +136,7 @@ class Frame:
     nanosec_: int
     seqnum: int
     data: memoryview
+    writer: int = 0  # the DDS writer's instance handle (0: not from DDS)
 
     @property
     def timestamp_ns(self) -> int:
@@ -182,10 +193,23 @@ class FrameCodec:
             raise ValueError(f"unexpected CDR encapsulation {encapsulation:#06x} for {self.data_type.__name__}")
         fields = _LITTLE_FIELDS if encapsulation & 1 else _BIG_FIELDS
         start = offset + _HEADER_FIELDS
-        if len(view) < start + self.size:
-            raise ValueError(f"a {len(view)}-byte sample is too short for a {self.size}-byte frame")
+        image = len(view) - start
+        # Cyclone pads a serialized sample to whole 4-byte units: up to 3 bytes after the image are padding.
+        if not self.size <= image <= self.size + 3:
+            what = "too short" if image < self.size else "too long"
+            raise BadSampleError(BadSample("data", f"{max(image, 0)} bytes, {what}",
+                                           f"a frame of {self.size} bytes ({self.data_type.__name__})"))
+        if offset == 8:  # XCDR2: the DHEADER gives the body's length
+            body, = struct.unpack_from("<I" if encapsulation & 1 else ">I", view, 4)
+            if body != _HEADER_FIELDS + self.size:
+                raise BadSampleError(BadSample("DHEADER", str(body), f"{_HEADER_FIELDS + self.size} bytes"))
         id_, sec, nanosec, seqnum = fields.unpack_from(view, offset)
         return Frame(id_, sec, nanosec, seqnum, view[start:start + self.size])
+
+    @staticmethod
+    def check(frame: Frame) -> BadSample | None:
+        """The rule a decoded frame must follow: a well-formed stamp (automotive.bus.validation's timestamp rule)."""
+        return timestamp_problem(frame.sec_, frame.nanosec_, "", "sec_", "nanosec_")
 
 
 class FrameWriter:
@@ -295,6 +319,7 @@ class FrameReader:
         self.reader = reader
         self.codec = FrameCodec(reader.topic.data_type)
         self._raw = RawReader(reader, zero_copy)
+        self._writer_names = WriterNames(reader)
 
     @property
     def zero_copy(self) -> bool:
@@ -303,9 +328,34 @@ class FrameReader:
     def take(self, limit: int = 16) -> TakenFrames:
         """Take up to ``limit`` samples: ``with reader.take() as frames: ...`` (samples without data are skipped)."""
         lent = self._raw.lend(limit)
+        frames: list[Frame] = []
         try:
-            frames = [self.codec.decode(sample.data) for sample in lent.samples if sample.kind is SampleKind.DATA]
+            for sample in lent.samples:
+                if sample.kind is not SampleKind.DATA:
+                    continue
+                try:
+                    frame = self.codec.decode(sample.data)
+                except BadSampleError as error:
+                    self.report(error.problem, sample.writer)
+                    continue
+                except Exception as error:  # any frame another writer sends: never out of the take
+                    self.report(undecodable(error, f"a {self.codec.data_type.__name__} frame"), sample.writer)
+                    continue
+                problem = self.codec.check(frame)
+                if problem is not None:
+                    frame.data.release()
+                    self.report(problem, sample.writer)
+                    continue
+                frame.writer = sample.writer
+                frames.append(frame)
         except BaseException:
+            for frame in frames:
+                frame.data.release()
             lent.close()
             raise
         return TakenFrames(frames, lent.close)
+
+    def report(self, problem: BadSample, writer: int, action: str = "ignored") -> None:
+        """Report a bad frame of ``writer`` (rate-limited, automotive.bus.badsamples)."""
+        reporter = getattr(self.reader, "reporter", None) or badsamples.reporter()
+        reporter.report(self.reader.topic.get_name(), problem, self._writer_names.describe(writer), action)

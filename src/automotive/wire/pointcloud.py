@@ -13,15 +13,23 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from automotive.bus.samplerules import (  # noqa: F401  (the datatypes are this codec's names too)
+    DATATYPE_CODES,
+    FLOAT32,
+    FLOAT64,
+    INT8,
+    INT16,
+    INT32,
+    UINT8,
+    UINT16,
+    UINT32,
+)
 from automotive.types.builtin_interfaces.msg.dds_ import Time_
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_, PointField_
 from automotive.types.std_msgs.msg.dds_ import Header_
 
-# sensor_msgs/PointField datatypes (ROS 2).
-INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = 1, 2, 3, 4, 5, 6, 7, 8
-_DATATYPE_CODES: dict[int, str] = {
-    INT8: "i1", UINT8: "u1", INT16: "i2", UINT16: "u2", INT32: "i4", UINT32: "u4", FLOAT32: "f4", FLOAT64: "f8",
-}
+# sensor_msgs/PointField datatypes (ROS 2), with the rules of received clouds (automotive.bus.samplerules).
+_DATATYPE_CODES = DATATYPE_CODES
 
 POINT_STEP = 16
 # One point as it goes on the wire. rgb is declared float32 (as the PointField says) but carries uint32 bits.

@@ -31,8 +31,11 @@ from cyclonedds.core import InstanceState
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
+from automotive.bus import badsamples
+from automotive.bus.checkedreader import WriterNames, type_name, undecodable
 from automotive.cyclone import serdata
 
+ANY_STATE = serdata.ANY_STATE
 Buffer = bytes | bytearray | memoryview
 
 
@@ -126,6 +129,7 @@ class RawReader:
         self.data_type.__idl__.populate()  # Cyclone Python works out a type's keys on first use
         self._keyless = bool(self.data_type.__idl__.keyless)
         self._lender = serdata.lender() if zero_copy else None
+        self._writer_names = WriterNames(reader)
 
     @property
     def zero_copy(self) -> bool:
@@ -143,7 +147,13 @@ class RawReader:
             if whole_key_sample:
                 key = bytes(data)
             else:
-                key = key_to_sample(self.data_type, data) if data or self._keyless else b""
+                try:
+                    key = key_to_sample(self.data_type, data) if data or self._keyless else b""
+                except Exception as error:  # a key our types cannot hold (a string that is not UTF-8): reported
+                    problem = undecodable(error, f"a key that decodes as {type_name(self.data_type)}")
+                    reporter = getattr(self.reader, "reporter", None) or badsamples.reporter()
+                    reporter.report(self.reader.topic.get_name(), problem, self._writer_names.describe(writer))
+                    return []
             return [RawSample(key, _state_change(state), stamp, writer, instance, state)]
         samples = [RawSample(data, SampleKind.DATA, stamp, writer, instance, state)]
         if state != InstanceState.Alive and info.sample_rank == 0:

@@ -1,0 +1,198 @@
+"""The checked take: every sample decoded on its own and checked before the application sees it.
+
+Cyclone Python's ``DataReader.take`` deserializes a whole batch in one loop; one sample it cannot decode (a string
+that is not UTF-8, say) raises out of ``take`` and out of the application's loop, and the good samples of that batch
+are lost with it. :class:`CheckedReader` (every reader the runtime creates, automotive.bus.endpoints) takes the
+serialized samples instead and, for each one:
+
+1. decodes it with the type's decoder (:func:`decoder`: Cyclone's deserializer unless another one is registered with
+   :func:`set_decoder`, one replaceable function per type);
+2. checks it (automotive.bus.validation: finite floats, well-formed timestamps, the type's semantic rule);
+3. hands it to the application if both passed; otherwise reports it once per kind (automotive.bus.badsamples: topic,
+   writer, member, value, what was expected) and leaves it out. A bad sample that also says its instance was disposed
+   or lost its writers still passes that on, as a sample without data (``InvalidSample``), so no state change is lost.
+
+Applications keep calling ``reader.take(N=...)`` and filtering ``isinstance(sample, Type)``; a take never raises for
+what a remote writer sent.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsParticipant
+from cyclonedds.core import DDSException, InstanceState
+from cyclonedds.qos import Policy
+from cyclonedds.sub import DataReader, InvalidSample
+
+from automotive.bus import badsamples, validation
+from automotive.bus.badsamples import BadSample, BadSampleReporter
+from automotive.cyclone import serdata
+
+T = TypeVar("T")
+Decoder = Callable[[bytes], Any]
+
+_DECODERS: dict[type, Decoder] = {}
+_WRITER_CACHE = 64  # writer descriptions kept per reader; cleared when full (a writer is looked up again, no more)
+
+
+def set_decoder(data_type: type, decode: Decoder | None) -> None:
+    """Decode samples of ``data_type`` with ``decode`` (serialized bytes, encapsulation header included, to a
+    sample); None restores Cyclone's deserializer. A decoder raises any Exception for bytes it cannot decode."""
+    if decode is None:
+        _DECODERS.pop(data_type, None)
+    else:
+        _DECODERS[data_type] = decode
+
+
+def decoder(data_type: type) -> Decoder:
+    """The decoder of a type: the registered one, else Cyclone's ``data_type.deserialize``."""
+    return _DECODERS.get(data_type) or data_type.deserialize  # type: ignore[attr-defined]
+
+
+def type_name(data_type: type) -> str:
+    return getattr(data_type, "__idl_typename__", data_type.__name__).replace(".", "::")
+
+
+def undecodable(error: Exception, what: str) -> BadSample:
+    return BadSample("", f"undecodable ({type(error).__name__}: {error})", what)
+
+
+def format_guid(guid: Any) -> str:
+    """A GUID as Cyclone prints it in its own log lines (four 32-bit words in hex): ``10f7f01:c848d0dd:0:103``."""
+    return ":".join(f"{word:x}" for word in struct.unpack(">4I", guid.bytes))
+
+
+class WriterNames:
+    """Describes the writers of a reader's samples: GUID, the writer's entity name and its participant's name
+    (from discovery data, looked up when first needed and kept for a bounded number of writers)."""
+
+    def __init__(self, reader: DataReader[Any]):
+        self.reader = reader
+        self._names: dict[int, str] = {}
+        self._participants: BuiltinDataReader | None = None
+
+    def describe(self, handle: int) -> str:
+        text = self._names.get(handle)
+        if text is None:
+            if len(self._names) >= _WRITER_CACHE:
+                self._names.clear()
+            text = self._names[handle] = self._look_up(handle)
+        return text
+
+    def _look_up(self, handle: int) -> str:
+        try:
+            endpoint = self.reader.get_matched_publication_data(handle)
+        except DDSException:
+            endpoint = None
+        if endpoint is None:
+            return f"writer {handle & 0xFFFFFFFFFFFFFFFF:x} (no longer matched)"
+        text = f"writer {format_guid(endpoint.key)}"
+        if Policy.EntityName in endpoint.qos:
+            text += f" '{endpoint.qos[Policy.EntityName].name}'"
+        participant = self._participant_name(endpoint.participant_key)
+        return text + (f" of participant '{participant}'" if participant else "")
+
+    def _participant_name(self, key: Any) -> str:
+        try:
+            if self._participants is None:
+                self._participants = BuiltinDataReader(self.reader.participant, BuiltinTopicDcpsParticipant)  # type: ignore[arg-type]
+            for participant in self._participants.read(N=1024):
+                if getattr(participant, "key", None) == key and Policy.EntityName in participant.qos:
+                    return str(participant.qos[Policy.EntityName].name)
+        except DDSException:
+            pass
+        return ""
+
+
+class CheckedReader(DataReader[T]):
+    """A DataReader whose take and read give only samples that decode and pass their type's checks (see the module's
+    doc); the others are reported and left out."""
+
+    def __init__(self, *args: Any, reporter: BadSampleReporter | None = None, **kwargs: Any):
+        self.reporter = reporter  # None: the process's reporter
+        self._writer_names = WriterNames(self)
+        super().__init__(*args, **kwargs)
+
+    def take(self, N: int = 1, condition: Any = None, instance_handle: int | None = None) -> list[Any]:
+        fetched = serdata.fetch(self, True, N, condition, instance_handle)
+        if fetched is None:  # Cyclone's public take, one sample at a time: one that cannot be decoded is lost alone
+            samples: list[Any] = []
+            while len(samples) < N:
+                batch = self._public(super().take, 1, condition, instance_handle)
+                if batch is None:
+                    break
+                samples += batch
+            return samples
+        return self._checked(fetched)
+
+    def read(self, N: int = 1, condition: Any = None, instance_handle: int | None = None) -> list[Any]:
+        fetched = serdata.fetch(self, False, N, condition, instance_handle)
+        if fetched is None:
+            return self._public(super().read, N, condition, instance_handle) or []
+        return self._checked(fetched)
+
+    def _public(self, fetch: Callable[..., list[Any]], count: int, condition: Any,
+                instance_handle: int | None) -> list[Any] | None:
+        """Cyclone's public take or read, checked (the version gate is closed); None when nothing was there."""
+        try:
+            fetched = fetch(N=count, condition=condition, instance_handle=instance_handle)
+        except Exception as error:  # Cyclone's deserializer failed on a sample of the batch: the batch is gone
+            problem = undecodable(error, f"a sample that decodes as {type_name(self.topic.data_type)}")
+            (self.reporter or badsamples.reporter()).report(self.topic.get_name(), problem, "a writer")
+            return []
+        if not fetched:
+            return None
+        samples: list[Any] = []
+        for sample in fetched:
+            if isinstance(sample, InvalidSample):
+                samples.append(sample)
+                continue
+            problem = validation.check(sample)  # type: ignore[assignment]
+            if problem is None:
+                samples.append(sample)
+                continue
+            self.report(problem, sample.sample_info)
+            if sample.sample_info.instance_state != InstanceState.Alive:
+                samples.append(InvalidSample(sample, sample.sample_info))
+        return samples
+
+    def _checked(self, fetched: list[tuple[bytes, Any]]) -> list[Any]:
+        data_type = self.topic.data_type
+        decode = decoder(data_type)
+        samples: list[Any] = []
+        for data, info in fetched:
+            if not info.valid_data:
+                samples.append(InvalidSample(self._key(data, info), info))
+                continue
+            sample: Any = None
+            try:
+                sample = decode(data)
+            except Exception as error:  # whatever a decoder raises for bytes it cannot decode
+                problem: BadSample | None = undecodable(error, f"a sample that decodes as {type_name(data_type)}")
+            else:
+                problem = validation.check(sample)
+            if problem is None:
+                sample.sample_info = info
+                samples.append(sample)
+                continue
+            self.report(problem, info)
+            if info.instance_state != InstanceState.Alive:  # the instance's end is news the application needs
+                samples.append(InvalidSample(sample, info))
+        return samples
+
+    def _key(self, data: bytes, info: Any) -> Any:
+        """The key of a disposal or unregistration (None, reported, when it cannot be decoded)."""
+        data_type = self.topic.data_type
+        try:
+            return data_type.deserialize_key(data)  # type: ignore[attr-defined]
+        except Exception as error:  # as for samples: one bad key never breaks a take
+            self.report(undecodable(error, f"a key that decodes as {type_name(data_type)}"), info)
+            return None
+
+    def report(self, problem: BadSample, info: Any, action: str = "ignored") -> None:
+        """Report a bad sample of this reader (found by the reader, or by the application: a rule of its own)."""
+        reporter = self.reporter or badsamples.reporter()
+        reporter.report(self.topic.get_name(), problem, self._writer_names.describe(info.publication_handle), action)

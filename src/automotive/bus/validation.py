@@ -1,0 +1,160 @@
+"""Rules a received sample must follow before an application sees it: generic ones, derived from the type's
+annotations, and semantic ones, written by the module that knows the data.
+
+Generic rules, for every type, found by walking its members (nested structs, arrays and sequences included):
+
+- every ``float32``/``float64`` member is finite (no NaN, no infinity): nothing in this system means "unknown" by
+  NaN, and one NaN silently turns comparisons false (an object of NaN metres is never "taller than 2 m");
+- every timestamp (a member of a type of :data:`TIMESTAMP_MEMBERS`) is well formed: nanoseconds 0..999,999,999,
+  seconds 0 or more. Old and future times are NOT errors here: a replayed recording carries its original data
+  timestamps, and what "too old" means depends on the use (redundant mode's StallGuard judges the writers' source
+  timestamps against its lease; see automotive.bus.ownership).
+
+What Cyclone already checks in C on reception (measured with Cyclone 11.0.1 and Fast DDS 2.9): enum values outside
+the enum, strings and sequences over their IDL bounds, truncated samples. Such a sample never reaches Python; Cyclone
+drops it and logs a warning, which automotive.bus.cyclonelog rate-limits. Bounds that only our writers enforce
+(automotive.bus.bounds.EXTRA_BOUNDS, e.g. the 368,640-byte cloud of RTI's IDL) are not applied to what we read: ROS 2's
+PointCloud2 is unbounded and larger clouds of other publishers are valid.
+
+Semantic rules, one function per type in the module that knows the data (:data:`SEMANTIC_CHECKS`): a PointCloud2's
+geometry and a Shapes Demo circle's size and position (automotive.bus.samplerules). Camera frames
+are decoded by their own codec, which checks their length and header (automotive.wire.camera).
+
+:func:`check` returns the first problem found (a :class:`BadSample`) or None. Rules are compiled once per type.
+"""
+
+from __future__ import annotations
+
+import math
+import typing
+from collections.abc import Callable
+from functools import cache
+from typing import Any
+
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl.types import array, sequence, typedef
+
+from automotive.bus import samplerules
+from automotive.bus.badsamples import BadSample
+from automotive.cyclone.bounds import member_types
+from automotive.types.automotive import ShapeType
+from automotive.types.builtin_interfaces.msg.dds_ import Time_
+from automotive.types.Common import POSIXTimestamp
+from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
+
+# Timestamp types and their (seconds, nanoseconds) members.
+TIMESTAMP_MEMBERS: dict[type, tuple[str, str]] = {
+    POSIXTimestamp: ("s", "ns"),
+    Time_: ("sec_", "nanosec_"),
+}
+
+# Per type: the rule of the module that knows the data. Applied to every sample of the type, nested ones too.
+SEMANTIC_CHECKS: dict[type, Callable[[Any], BadSample | None]] = {
+    PointCloud2_: samplerules.check_point_cloud2,
+    ShapeType: samplerules.check_shape,
+}
+
+NANOSECONDS = 1_000_000_000
+FINITE = "a finite number"
+
+Checker = Callable[[Any, str], "BadSample | None"]
+
+
+def timestamp_problem(seconds: int, nanoseconds: int, path: str, seconds_name: str,
+                      nanoseconds_name: str) -> BadSample | None:
+    """A malformed timestamp (nanoseconds outside 0..999,999,999, negative seconds), or None."""
+    if not 0 <= nanoseconds < NANOSECONDS:
+        return BadSample(_join(path, nanoseconds_name), str(nanoseconds), "nanoseconds 0..999999999")
+    if seconds < 0:
+        return BadSample(_join(path, seconds_name), str(seconds), "seconds since 1970, 0 or more")
+    return None
+
+
+def _join(path: str, name: str) -> str:
+    return f"{path}.{name}" if path else name
+
+
+def _is_float(hint: Any) -> bool:
+    if hint is float:
+        return True
+    if typing.get_origin(hint) is typing.Annotated:
+        args = typing.get_args(hint)
+        return args[0] is float
+    return False
+
+
+def _check_float(value: float, path: str) -> BadSample | None:
+    if math.isfinite(value):
+        return None
+    return BadSample(path, repr(value), FINITE)
+
+
+def _check_floats(values: Any, path: str) -> BadSample | None:
+    # A sum of finite float32 values cannot overflow a Python float: one test for the whole array in the usual case.
+    # A NaN or infinity makes the sum non-finite; only then (or for float64 values big enough to overflow the sum)
+    # is each element looked at.
+    if math.isfinite(sum(values)):
+        return None
+    for index, value in enumerate(values):
+        if not math.isfinite(value):
+            return BadSample(f"{path}[{index}]", repr(value), FINITE)
+    return None
+
+
+def _elements(element: Checker) -> Checker:
+    def check(values: Any, path: str) -> BadSample | None:
+        for index, value in enumerate(values):
+            problem = element(value, f"{path}[{index}]")
+            if problem is not None:
+                return problem
+        return None
+    return check
+
+
+def _checker(hint: Any) -> Checker | None:
+    """The check of a member of this type hint, or None when nothing in it needs checking."""
+    if isinstance(hint, typedef):
+        return _checker(hint.subtype)
+    if _is_float(hint):
+        return _check_float
+    if isinstance(hint, (array, sequence)):
+        if _is_float(hint.subtype):
+            return _check_floats
+        element = _checker(hint.subtype)
+        return _elements(element) if element is not None else None
+    if isinstance(hint, type) and issubclass(hint, IdlStruct):
+        return _struct_checker(hint)
+    return None  # integers, booleans, enums, strings, octets: Cyclone's deserializer already holds them to the type
+
+
+@cache
+def _struct_checker(cls: type) -> Checker | None:
+    members = [(name, checker) for name, hint in member_types(cls).items()
+               if (checker := _checker(hint)) is not None]
+    stamp = TIMESTAMP_MEMBERS.get(cls)
+    semantic = SEMANTIC_CHECKS.get(cls)
+    if not members and stamp is None and semantic is None:
+        return None
+
+    def check(sample: Any, path: str) -> BadSample | None:
+        if stamp is not None:
+            problem = timestamp_problem(getattr(sample, stamp[0]), getattr(sample, stamp[1]), path, *stamp)
+            if problem is not None:
+                return problem
+        for name, member_check in members:
+            problem = member_check(getattr(sample, name), _join(path, name))
+            if problem is not None:
+                return problem
+        if semantic is not None:
+            problem = semantic(sample)
+            if problem is not None and path:
+                return BadSample(_join(path, problem.member), problem.value, problem.expected)
+            return problem
+        return None
+    return check
+
+
+def check(sample: Any) -> BadSample | None:
+    """The first rule ``sample`` breaks, or None."""
+    checker = _struct_checker(type(sample))  # type: ignore[arg-type]
+    return None if checker is None else checker(sample, "")
