@@ -33,6 +33,7 @@ from lidar_helpers import Clouds, circle, points_of
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
+from automotive import config
 from automotive.bus.endpoints import Databus
 from automotive.bus.qos import WRITER_REPRESENTATION, QosProfiles
 from automotive.sim.scene import SHAPE_RGB, LidarScene, ScanGrid
@@ -436,7 +437,7 @@ def hostile_recording(path: Path) -> None:
         writer = Writer(stream)
         writer.start(profile="ros2", library="test")
         schema = writer.register_schema(flow.schema.name, flow.schema.encoding, flow.schema.data)
-        qos = QosProfiles(ROOT / "qos" / "automotive_qos.xml").writer_qos("AutomotiveLibrary", flow.profile)
+        qos = QosProfiles(config.qos_file()).writer_qos("AutomotiveLibrary", flow.profile)
         channel = writer.register_channel("PlatformControl", "cdr", schema, channel_metadata(flow, qos))
         for index, data in enumerate([good[0], bad, bad, good[2]]):  # 100 ms apart
             writer.add_message(channel, log_time=(index + 1) * 10**8, data=data, publish_time=(index + 1) * 10**8,

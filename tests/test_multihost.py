@@ -357,7 +357,7 @@ def test_a_late_rti_participant_on_another_host_finds_every_application_with_uni
         hosts: TwoHosts, tmp_path: Path) -> None:
     """The whole system on A in peers mode, an RTI participant on B (initial peers: A) joining it late."""
     launcher = hosts.start(hosts.a, "launch", [
-        sys.executable, str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
+        str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
         "--domain", str(hosts.domain_id), "--peers", PEERS, "--log-dir", str(tmp_path / "a")])
     late_rti_participant(hosts, launcher, "--initial-peers", ADDRESS_A)
     hosts.assert_no_cyclone_lines()
@@ -369,6 +369,6 @@ def test_a_late_rti_participant_on_another_host_finds_every_application_on_a_mul
     for host in (hosts.a, hosts.b):
         must("ip", "-n", host.namespace, "link", "set", host.device, "multicast", "on")
     launcher = hosts.start(hosts.a, "launch", [
-        sys.executable, str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
+        str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
         "--domain", str(hosts.domain_id), "--interface", hosts.a.device, "--log-dir", str(tmp_path / "a")])
     late_rti_participant(hosts, launcher, "--lan")
