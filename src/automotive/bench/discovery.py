@@ -110,7 +110,7 @@ import json, sys, time
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.sub import DataReader
 from cyclonedds.topic import Topic
-from automotive import config
+from automotive import config as shipped
 from automotive.tools.flows import system_flows
 from automotive.bus.qos import QosProfiles
 from automotive.bus.app import DEFAULT_LIBRARY
@@ -122,7 +122,7 @@ config = ('<CycloneDDS><Domain><General><Interfaces><NetworkInterface name="lo"/
           '<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex>'
           f'<MaxAutoParticipantIndex>120</MaxAutoParticipantIndex><Peers AddLocalhost="false">{peers}</Peers>'
           '</Discovery></Domain></CycloneDDS>')
-profiles = QosProfiles(config.qos_file())
+profiles = QosProfiles(shipped.qos_file())
 flows = [flow for flow in system_flows() if flow.topic != "Circle"]
 started = time.monotonic()
 dds_domain = Domain(domain, config)
