@@ -17,7 +17,7 @@ from cyclonedds.qos import DataReaderQos, DataWriterQos, Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
-from automotive import bounds, fastpath
+from automotive import badsamples, bounds, fastpath
 from automotive.badsamples import BadSampleReporter
 from automotive.checkedreader import CheckedReader
 from automotive.errors import ConfigError
@@ -85,7 +85,7 @@ class Databus:
         return topic
 
     def _listener(self, topic_name: str, hook: EventHook | None, exclusive: bool = False) -> StatusListener:
-        listener = StatusListener(topic_name, self.log, hook, exclusive)
+        listener = StatusListener(topic_name, self.log, hook, exclusive, self.reporter or badsamples.reporter())
         self._listeners.append(listener)  # Cyclone keeps only a C reference: keep the Python object alive
         return listener
 
