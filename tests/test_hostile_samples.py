@@ -523,3 +523,22 @@ def test_memory_stays_bounded_under_a_flood_of_bad_samples(apps, domain_id: int,
     assert grown < 16 * 1024, f"RSS grew by {grown} KiB over 4,000 more bad samples"
     assert platform.count(r"more like this in the last") >= 2
     stop_and_check(platform, [])
+
+
+def test_a_flood_of_new_instances_is_bounded(apps, domain_id: int, bus: Databus) -> None:  # type: ignore[no-untyped-def]
+    """A writer that invents new keys without end (here Shapes Demo colours): the reader keeps at most 256 instances
+    (the Shapes profile; Vision keeps 1024), so its memory stays bounded; a sample of a further instance is rejected
+    and reported once (then counted), and once the flood's instances are gone a new colour is drawn again."""
+    lidar = apps.start("lidar", *domain(domain_id), *WINDOW)
+    writer = DataWriter(bus.publisher, bus.topic("Circle", ShapeType), qos=Qos(WRITER_REPRESENTATION))
+    matched(writer)
+    flood = [ShapeType(color=f"F{index:03d}", x=120, y=135, shapesize=5) for index in range(300)]
+    rejected = r"\[Circle\] sample rejected \(instance limit\): total \d+; repeats are counted"
+    write_until(lidar, rejected, lambda: [writer.write(sample) for sample in flood])
+    for sample in flood:
+        writer.dispose(sample)
+        writer.unregister_instance(sample)
+    x, y = circle(4, 0)
+    write_until(lidar, rf"shape GREEN appeared at \({x}, {y}\), size 60",
+                lambda: writer.write(ShapeType(color="GREEN", x=x, y=y, shapesize=60)))
+    stop_and_check(lidar, [rejected])

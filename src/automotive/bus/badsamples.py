@@ -191,6 +191,13 @@ class BadSampleReporter:
                 f"reported every {self.interval_s:g} s")
         self.lines.add((topic, problem.kind), line, f"{problem.brief()}, from {writer}", problem.kind, prefix)
 
+    def repeated_event(self, topic: str, event: str, message: str) -> None:
+        """A DDS status event that a remote writer can repeat without end (a deadline missed, a sample lost or
+        rejected): rate-limited like bad samples, one line per (topic, event) and interval."""
+        prefix = f"[{topic}] "
+        line = f"{prefix}{message}; repeats are counted and reported every {self.interval_s:g} s"
+        self.lines.add((topic, event), line, message, event.replace("_", " "), prefix)
+
     @property
     def kinds(self) -> int:
         return self.lines.kinds

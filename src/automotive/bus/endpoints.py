@@ -18,6 +18,7 @@ from cyclonedds.qos import DataReaderQos, DataWriterQos, Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
+from automotive.bus import badsamples
 from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.errors import ConfigError
@@ -87,7 +88,8 @@ class Databus:
         return topic
 
     def _listener(self, topic_name: str, hook: EventHook | None, exclusive: bool = False) -> StatusListener:
-        listener = StatusListener(topic_name, self.log, hook, exclusive, self.stats)
+        listener = StatusListener(topic_name, self.log, hook, exclusive, self.stats,
+                                  self.reporter or badsamples.reporter())
         self._listeners.append(listener)  # Cyclone keeps only a C reference: keep the Python object alive
         return listener
 

@@ -1,4 +1,10 @@
-"""One listener that reports every DDS status event of an endpoint as one readable line naming its topic."""
+"""One listener that reports every DDS status event of an endpoint as one readable line naming its topic.
+
+Events that a remote writer can repeat without end (a deadline missed per instance and period, samples lost or
+rejected one by one: a flood of instances or of samples from a hostile or broken writer) are rate-limited like bad
+samples (automotive.bus.badsamples): the first line at once, then one count per interval. Matches, liveliness and
+incompatible QoS come once per remote endpoint and are always logged.
+"""
 
 from __future__ import annotations
 
@@ -8,6 +14,7 @@ from typing import Any
 
 from cyclonedds.core import Listener
 
+from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.stats import Stats
 
 # DDS QoS policy ids, as in the DDS specification and Cyclone's dds_public_qosdefs.h.
@@ -23,6 +30,8 @@ REJECTED_REASONS = {0: "not rejected", 1: "instance limit", 2: "sample limit", 3
 
 # Called with (event name, topic name, status) after the line is logged, for applications that react to events.
 EventHook = Callable[[str, str, Any], None]
+REPEATING_EVENTS = frozenset({"offered_deadline_missed", "requested_deadline_missed", "sample_lost",
+                              "sample_rejected"})
 
 
 def policy_name(policy_id: int) -> str:
@@ -33,7 +42,7 @@ class StatusListener(Listener):
     """Logs matched/unmatched, deadline missed, liveliness, incompatible QoS, sample lost and rejected events."""
 
     def __init__(self, topic_name: str, log: logging.Logger, hook: EventHook | None = None, exclusive: bool = False,
-                 stats: Stats | None = None):
+                 stats: Stats | None = None, reporter: BadSampleReporter | None = None):
         super().__init__()
         self.stats = stats
         self.topic_name = topic_name
@@ -43,9 +52,13 @@ class StatusListener(Listener):
         self.exclusive = exclusive
         self.log = log
         self.hook = hook
+        self.reporter = reporter  # rate-limits the REPEATING_EVENTS; None: every event logged
 
     def _report(self, event: str, status: Any, message: str, level: int = logging.INFO) -> None:
-        self.log.log(level, "[%s] %s", self.topic_name, message)
+        if self.reporter is not None and event in REPEATING_EVENTS:
+            self.reporter.repeated_event(self.topic_name, event, message)
+        else:
+            self.log.log(level, "[%s] %s", self.topic_name, message)
         if self.hook is not None:
             self.hook(event, self.topic_name, status)
 
