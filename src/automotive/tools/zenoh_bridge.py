@@ -118,12 +118,13 @@ def topic_choices(props: Properties, key: str, topics: list[str], choices: dict[
 def choose_flows(props: Properties, flows: list[Flow], topics_option: str) -> list[Flow]:
     """The flows to bridge: --topics (or bridge.allow; all when empty) less bridge.deny (automotive.tools.flows'
     selection, as the recorder and the Foxglove bridge choose theirs)."""
+    allow, deny = props.get_list("bridge.allow", []), props.get_list("bridge.deny", [])
     if topics_option:
-        allowed = select(flows, topics_option)
+        allowed = select(flows, topics_option)  # the command line wins over the properties
     else:
-        allowed = select(flows, ",".join(props.get_list("bridge.allow", [])), "bridge.allow")
-    denied = {flow.topic for flow in select(flows, ",".join(props.get_list("bridge.deny", [])), "bridge.deny")
-              } if props.get_list("bridge.deny", []) else set()
+        allowed = select(flows, ",".join(allow), props.where("bridge.allow") + ": bridge.allow")
+    denied = {flow.topic for flow in select(flows, ",".join(deny), props.where("bridge.deny") + ": bridge.deny")
+              } if deny else set()
     chosen = [flow for flow in allowed if flow.topic not in denied]
     if not chosen:
         raise ConfigError(f"{props.source}: no topic left to bridge (allow: "
