@@ -269,3 +269,18 @@ def test_without_the_fast_paths_the_bridge_runs_and_says_liveliness_is_not_carri
     assert bridge.count(r"liveliness is not carried across the link: .*AUTOMOTIVE_FAST_PATHS=off") == 1, bridge.output
     assert bridge.stop() == 0, bridge.output
     assert "Traceback" not in bridge.output
+
+
+@pytest.mark.parametrize("program,args,pattern", [
+    ("zenoh_certs", ["certs"], r"^automotive-zenoh-certs: the following arguments are required: SITE"),
+    ("zenoh_certs", ["certs", "site-a", "--days", "0"], r"^automotive-zenoh-certs: --days 0: expected a positive"),
+    ("zenoh_certs", ["certs", "site-a=10.0.0.2,bad host"], r"^automotive-zenoh-certs: site site-a: 'bad host' is not "
+                                                            r"an IP address or host name$"),
+    ("delay_relay", ["--listen", "nowhere", "--target", "127.0.0.1:1"], r"^automotive-delay-relay: argument --listen: "
+                                                                         r"'nowhere' is not HOST:PORT"),
+])
+def test_the_link_tools_refuse_bad_arguments_in_one_line(tmp_path: Path, program: str, args: list[str],
+                                                         pattern: str) -> None:
+    result = subprocess.run(program_command(program, *args), cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert_one_line_error(result, pattern)
+    assert not (tmp_path / "certs").exists()  # nothing written before every argument was checked

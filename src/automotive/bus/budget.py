@@ -110,7 +110,7 @@ class SampleQueue(Generic[T]):
     budget: Budget = field(default_factory=Budget)
     counts: QueueCounts = field(default_factory=QueueCounts)
     _entries: collections.deque[_Entry[T]] = field(default_factory=collections.deque)
-    _bytes: int = 0
+    _queued_bytes: int = 0
     _closed: bool = False
     _changed: threading.Condition = field(default_factory=threading.Condition)
 
@@ -119,7 +119,7 @@ class SampleQueue(Generic[T]):
 
     @property
     def bytes(self) -> int:
-        return self._bytes
+        return self._queued_bytes
 
     def offer(self, item: T, size: int, state_change: bool = False) -> None:
         """Queue a sample; what no longer fits (the oldest, or the waiting sample the budget holds back) is dropped
@@ -130,18 +130,18 @@ class SampleQueue(Generic[T]):
                 for index, entry in enumerate(self._entries):
                     if not entry.state_change:  # the one data sample waiting for the budget: the newer one wins
                         del self._entries[index]
-                        self._bytes -= entry.size
+                        self._queued_bytes -= entry.size
                         self.counts.dropped_budget += 1
                         break
             while self._entries and (len(self._entries) >= self.max_length
-                                     or self._bytes + size > self.max_bytes):
+                                     or self._queued_bytes + size > self.max_bytes):
                 dropped = self._entries.popleft()
-                self._bytes -= dropped.size
+                self._queued_bytes -= dropped.size
                 self.counts.dropped_full += 1
             self._entries.append(_Entry(item, size, state_change))
-            self._bytes += size
+            self._queued_bytes += size
             self.counts.max_length = max(self.counts.max_length, len(self._entries))
-            self.counts.max_bytes = max(self.counts.max_bytes, self._bytes)
+            self.counts.max_bytes = max(self.counts.max_bytes, self._queued_bytes)
             self._changed.notify_all()
 
     def next(self, timeout_s: float) -> T | None:
@@ -155,7 +155,7 @@ class SampleQueue(Generic[T]):
                     wait = 0.0 if head.state_change else self.budget.wait_s()
                     if wait <= 0:
                         self._entries.popleft()
-                        self._bytes -= head.size
+                        self._queued_bytes -= head.size
                         self.counts.passed += 1
                         self.counts.passed_bytes += head.size
                         if not head.state_change:
