@@ -94,9 +94,13 @@ class Databus:
         return listener
 
     def writer(self, topic_name: str, data_type: type[T], profile: str,
-               hook: EventHook | None = None, strength: int | None = None) -> DataWriter[T]:
-        """A writer; ``strength`` is its ownership strength (EXCLUSIVE profiles), sent with the instance's name."""
+               hook: EventHook | None = None, strength: int | None = None,
+               overrides: tuple[Any, ...] = ()) -> DataWriter[T]:
+        """A writer; ``strength`` is its ownership strength (EXCLUSIVE profiles), sent with the instance's name;
+        ``overrides`` are policies that replace the profile's (the site bridge's writers: liveliness, user data)."""
         qos = self.profiles.writer_qos(self.library, profile)
+        if overrides:
+            qos = DataWriterQos(*overrides, base=qos)
         if strength is not None:
             # The entity name travels with the writer's discovery data: readers name the owner they follow.
             qos = DataWriterQos(Policy.OwnershipStrength(strength), Policy.EntityName(self.name), base=qos)

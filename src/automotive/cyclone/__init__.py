@@ -3,10 +3,12 @@
 - :mod:`.fastpath`: octet sequences and arrays (de)serialized as one block (Cyclone's serializer machinery);
 - :mod:`.serdata`: serialized samples taken from a reader and written to a writer without (de)serializing them, and
   Cyclone's received buffers lent without a copy (``cyclonedds._clayer``, ctypes prototypes of libddsc);
-- :mod:`.bounds`: IDL bounds checked before a write, with a clear message (Cyclone's type-hint resolution).
+- :mod:`.bounds`: IDL bounds checked before a write, with a clear message (Cyclone's type-hint resolution);
+- :mod:`.liveliness`: a writer's liveliness asserted without writing (``dds_assert_liveliness``, ctypes).
 
 Each has a fallback on Cyclone's public API, used when the gate is closed (another cyclonedds version, a missing
-internal, or ``AUTOMOTIVE_FAST_PATHS=off``): slower, the same samples.
+internal, or ``AUTOMOTIVE_FAST_PATHS=off``): slower, the same samples. Liveliness has none: the writer keeps its
+profile's own liveliness.
 """
 
 from __future__ import annotations

@@ -36,7 +36,8 @@ STDOUT, STDERR = "stdout", "stderr"
 # The programs of the project by the name people use (as the launcher and the tests name them), and their modules.
 APPS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "camera_pub",
         "camera_sub")
-TOOLS = ("record", "replay", "bridge", "lidar_view", "shapes", "launch", "config_export", "make_scene_data")
+TOOLS = ("record", "replay", "bridge", "lidar_view", "shapes", "launch", "config_export", "make_scene_data",
+         "zenoh_bridge", "zenoh_certs", "delay_relay")
 
 
 def program_module(name: str) -> str:

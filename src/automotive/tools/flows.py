@@ -1,4 +1,4 @@
-"""The data flows of the system as the recorder, the replayer and the live bridge see them.
+"""The data flows of the system as the recorder, the replayer, the live bridge and the Zenoh site bridge see them.
 
 Each flow is written by one application; that application's properties file names the flow's topic and QoS
 profile (``topic.<Role>``, ``qos.<Role>.Profile``), so a profile changed there is the one recorded and replayed

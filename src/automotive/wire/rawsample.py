@@ -62,7 +62,7 @@ class RawSample:
 _EMPTY_KEY = b"\x00\x01\x00\x00"  # an XCDR1 little-endian header and no key: the key of a keyless type
 
 
-def _handle(value: int) -> int:
+def signed_handle(value: int) -> int:
     """An instance handle as Cyclone Python's API gives them (a signed 64-bit number), whatever way it was read."""
     return ctypes.c_int64(value).value
 
@@ -141,8 +141,8 @@ class RawReader:
         A disposal or unregistration that arrives while its instance still holds unread data produces no sample of
         its own: Cyclone changes the instance state of that data instead. The newest sample of such an instance
         (sample rank 0) is therefore followed by the state change, carrying the data's key and timestamp."""
-        stamp, writer, instance, state = (info.source_timestamp, _handle(info.publication_handle),
-                                          _handle(info.instance_handle), info.instance_state)
+        stamp, writer, instance, state = (info.source_timestamp, signed_handle(info.publication_handle),
+                                          signed_handle(info.instance_handle), info.instance_state)
         if not info.valid_data:
             if whole_key_sample:
                 key = bytes(data)
