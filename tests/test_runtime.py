@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import logging
+import os
 import re
+import shutil
 import signal
+import subprocess
 import time
 from pathlib import Path
 
@@ -97,6 +100,18 @@ def test_network_configurations() -> None:
     assert "<FragmentSize>62000B</FragmentSize>" in large and "<MaxMessageSize>63500B</MaxMessageSize>" in large
     assert '<SocketReceiveBufferSize min="default" max="4MiB"/>' in large
     assert "<FragmentSize>" not in loopback
+
+
+def test_cyclone_c_tools_accept_their_loopback_configuration(domain_id: int) -> None:
+    """Debian's ddsperf (Cyclone C 0.10.2, the benchmarks' reference) stops on the PruneDelay attribute that the
+    runtime's loopback peer carries (unknown before Cyclone 0.11); the configuration made for it runs."""
+    ddsperf = shutil.which("ddsperf")
+    assert ddsperf is not None, "ddsperf (Debian's cyclonedds-tools, installed by scripts/setup) is not on PATH"
+    xml = NetworkConfig(large_data=True, prune_delay=False).cyclone_xml()
+    assert '<Peer address="127.0.0.1"/>' in xml
+    result = subprocess.run([ddsperf, "-i", str(domain_id), "-D", "0.2", "sub"], capture_output=True, text=True,
+                            env=dict(os.environ, CYCLONEDDS_URI=xml), timeout=30)
+    assert result.returncode == 0 and "config:" not in result.stdout + result.stderr, result.stdout + result.stderr
 
     with pytest.raises(ConfigError, match="peer 'bad host!' is not a host name or IP address"):
         NetworkConfig.from_settings(peers=["bad host!"])

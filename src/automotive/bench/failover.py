@@ -36,49 +36,16 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from automotive import config
-from automotive.bus import stats as status_records
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import Child, program_command, stop_all
+from automotive.tools.children import Record, StatsChild, stop_all
 
 PROG = "automotive-bench-failover"
 PRIMARY, STANDBY = 20, 10
 LEASE_MS = 250
 STALE_WINDOW_S = 2.0  # an alert change shown at the HMI must have been made by an instance this recently
-
-Record = dict[str, Any]
-
-
-class Program:
-    """A program of the redundant system with its status records (--stats) in ``workdir``."""
-
-    def __init__(self, name: str, module: str, args: list[str], env: dict[str, str], workdir: Path, index: int):
-        self.name = name
-        self.stats = workdir / f"{index:02d}-{name}.jsonl"
-        self.child = Child(name, program_command(module, *args, "--stats", str(self.stats)), env=env)
-
-    def records(self, kind: str, since: float = 0.0,
-                match: Callable[[Record], bool] = lambda record: True) -> list[Record]:
-        """The records of ``kind`` written at or after ``since`` (time.time) that ``match`` accepts."""
-        return [record for record in status_records.read(self.stats, kind) if record["t"] >= since and match(record)]
-
-    def wait_for(self, kind: str, since: float, timeout: float, what: str, count: int = 1,
-                 match: Callable[[Record], bool] = lambda record: True) -> Record:
-        """The ``count``-th record of ``kind`` from ``since`` on that ``match`` accepts."""
-        deadline = time.monotonic() + timeout
-        while True:
-            found = self.records(kind, since, match)
-            if len(found) >= count:
-                return found[count - 1]
-            if self.child.poll() is not None:
-                raise RuntimeError(f"{self.name} ended (exit {self.child.poll()}) while waiting for {what}")
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"no {what} within {timeout:g} s")
-            time.sleep(0.02)  # polling a file another process appends to
-
 
 def owner_change(topic: str, instance: str | None = None) -> Callable[[Record], bool]:
     """An owner record of ``topic`` that follows a previous owner (to ``instance``, if given)."""
@@ -94,7 +61,7 @@ class System:
         self.random = random.Random(11)  # the same kill phases in every run
         self.env = dict(os.environ)
         self.env["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()  # loopback only
-        self.processes: list[Program] = []
+        self.processes: list[StatsChild] = []
         self.hmi = self.spawn("hmi", "hmi", ["--ui", "console"])
         self.platform = self.spawn("vehicle_platform", "vehicle_platform", [])
         self.standby = self.instance("collision_avoidance-2")
@@ -105,12 +72,13 @@ class System:
                                                "-D", f"config.ownershipStrength={strength}"])
         self.spawn("vision", "vision", ["-D", "config.pubInterval=100", "-D", f"dataFile={data}"])
 
-    def spawn(self, name: str, module: str, args: list[str]) -> Program:
-        program = Program(name, module, [*self.common, *args], self.env, self.workdir, len(self.processes))
+    def spawn(self, name: str, module: str, args: list[str]) -> StatsChild:
+        program = StatsChild.start(name, module, [*self.common, *args],
+                                   self.workdir / f"{len(self.processes):02d}-{name}.jsonl", env=self.env)
         self.processes.append(program)
         return program
 
-    def instance(self, name: str) -> Program:
+    def instance(self, name: str) -> StatsChild:
         strength = STANDBY if name.endswith("-2") else PRIMARY
         return self.spawn(name, "collision_avoidance", ["-D", f"config.instanceName={name}",
                                                          "-D", f"config.ownershipStrength={strength}"])
@@ -169,29 +137,32 @@ class Failover:
 def failover(system: System, number: int) -> Failover:
     """Kill the primary, measure, restart it."""
     platform, hmi = system.platform, system.hmi
-    platform.wait_for("command", time.time(), system.timeout, "10 commands", count=10)
+    platform.wait_record("command", system.timeout, since=time.time(), what="10 commands", count=10)
     time.sleep(system.random.uniform(0, 0.1))  # the kill at a random phase of the 100 ms command period
     killed_at = time.time()
     system.primary.child.send_signal(signal.SIGKILL)
     system.primary.child.process.wait()
-    lost = platform.wait_for("liveliness", killed_at, system.timeout, "the platform's liveliness report",
-                             match=lambda record: record["topic"] == "PlatformControl" and record["lost"])
+    lost = platform.wait_record("liveliness", system.timeout, since=killed_at,
+                                what="the platform's liveliness report",
+                                match=lambda record: record["topic"] == "PlatformControl" and record["lost"])
     loss_reported = (lost["t"] - killed_at) * 1000
-    down = platform.wait_for("owner", killed_at, system.timeout, "the platform's owner change to the standby",
-                             match=owner_change("PlatformControl"))
+    down = platform.wait_record("owner", system.timeout, since=killed_at,
+                                what="the platform's owner change to the standby",
+                                match=owner_change("PlatformControl"))
     if down["instance"] != "collision_avoidance-2":
         raise RuntimeError(f"failover {number}: the platform followed {down['instance']}, not the standby")
     hmi_gap: float | None = None
     try:
-        hmi_gap = float(hmi.wait_for("owner", killed_at, 5.0, "the HMI's owner change",
-                                     match=owner_change("AlertTopic"))["gap_ms"])
+        hmi_gap = float(hmi.wait_record("owner", 5.0, since=killed_at, what="the HMI's owner change",
+                                        match=owner_change("AlertTopic"))["gap_ms"])
     except TimeoutError:
         pass  # no alert written by the standby within 5 s (no alert active): nothing to measure at the HMI
     restarted_at = time.time()
     system.primary = system.instance("collision_avoidance")
-    system.primary.wait_for("joined", 0, system.timeout, "the restarted primary's join")
-    up = platform.wait_for("owner", restarted_at, system.timeout, "the platform's owner change to the primary",
-                           match=owner_change("PlatformControl"))
+    system.primary.wait_record("joined", system.timeout, what="the restarted primary's join")
+    up = platform.wait_record("owner", system.timeout, since=restarted_at,
+                              what="the platform's owner change to the primary",
+                              match=owner_change("PlatformControl"))
     if up["instance"] != "collision_avoidance":
         raise RuntimeError(f"failover {number}: after the restart the platform followed {up['instance']}")
     return Failover(float(down["gap_ms"]), hmi_gap, float(up["gap_ms"]), loss_reported)
@@ -224,7 +195,8 @@ def run(args: argparse.Namespace) -> int:
         system = System(args.domain, write_scene(Path(folder) / "scene.csv"), args.timeout, Path(folder))
         runs: list[Failover] = []
         try:
-            system.platform.wait_for("owner", 0, args.timeout, "the primary's first command at the platform",
+            system.platform.wait_record("owner", args.timeout,
+                                        what="the primary's first command at the platform",
                                      match=lambda record: record["topic"] == "PlatformControl"
                                      and record["instance"] == "collision_avoidance")
             for number in range(1, args.failovers + 1):

@@ -39,7 +39,7 @@ from pathlib import Path
 from automotive.bus import stats
 from automotive.bus.cli import ArgumentParser, add_domain_option
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import Child, program_command
+from automotive.tools.children import Child, RunFailed, StatsChild, program_command
 
 PROG = "automotive-bench-large-data"
 SIZES = {"64KiB": 64 * 1024, "1MiB": 1024 * 1024, "4MiB": 4 * 1024 * 1024}
@@ -49,13 +49,12 @@ TOOLS = ("ours", "ours-shm", "ddsperf")
 
 
 # Loopback only, no multicast; every participant on this host is found through 127.0.0.1.
-def cyclone_uri(defaults: bool, buffer: str, fragment: int) -> str:
-    """The same loopback configuration for both tools: the runtime's own, with or without its large-data settings."""
-    return NetworkConfig(large_data=not defaults, fragment_size=fragment, socket_buffer=buffer).cyclone_xml()
-
-
-class RunFailed(RuntimeError):
-    """A run that did not get to its measurement: the reason is noted in its result."""
+def cyclone_uri(defaults: bool, buffer: str, fragment: int, c_tool: bool = False) -> str:
+    """The same loopback configuration for both tools: the runtime's own, with or without its large-data settings
+    (for the C tool without the one attribute its older Cyclone does not know; two processes find each other at
+    once, so probing forever does not matter here)."""
+    return NetworkConfig(large_data=not defaults, fragment_size=fragment, socket_buffer=buffer,
+                         prune_delay=not c_tool).cyclone_xml()
 
 
 def _wait_line(proc: Child, pattern: str, timeout: float) -> None:
@@ -63,18 +62,6 @@ def _wait_line(proc: Child, pattern: str, timeout: float) -> None:
         proc.wait_for(pattern, timeout)
     except AssertionError as error:
         raise RunFailed(str(error)) from None
-
-
-def _wait_record(proc: Child, path: Path, kind: str, timeout: float) -> None:
-    """Wait until the stats file of ``proc`` holds a record of ``kind``."""
-    deadline = time.monotonic() + timeout
-    while not any(True for _ in stats.read(path, kind)):
-        if proc.poll() is not None:
-            raise RunFailed(f"{proc.name} ended (exit {proc.poll()}) before a '{kind}' record; last output:\n"
-                            + "\n".join(proc.lines[-15:]))
-        if time.monotonic() > deadline:
-            raise RunFailed(f"{proc.name}: no '{kind}' record within {timeout:.0f} s")
-        time.sleep(0.1)  # polling a file another process appends to
 
 
 @dataclass
@@ -128,17 +115,14 @@ def run_ours(size_name: str, duration: float, domain: int, env: dict[str, str], 
         _wait_line(sub, "viewing", START_TIMEOUT)
         pub = Child("camera_pub", program_command("camera_pub", *common, "-D", f"config.pubInterval={interval_ms:g}",
                                                   python=launcher or ()), env=env)
-        _wait_record(sub, figures, "window", START_TIMEOUT)  # the first once-a-second report: data flows
+        # the first once-a-second report: data flows
+        StatsChild(sub, figures).wait_record("window", START_TIMEOUT)
         start, end, result.cpu_pub, result.cpu_sub = measure_window(pub, sub, duration)
         pub.stop(signal.SIGINT, timeout=30)
         _wait(sub, 60)  # camera_sub stops by itself once the publisher has left
         sub.stop(signal.SIGINT, timeout=30)
     except RunFailed as error:
-        result.note = str(error).splitlines()[0]
-        for proc in (pub, sub):
-            if proc is not None:
-                proc.stop(signal.SIGTERM)
-        return result
+        return _failed(result, error, pub, sub)
     # The windows' records carry the wall clock: measure_window's monotonic window, shifted onto it.
     shift = time.time() - time.monotonic()
     points, total = [], 0
@@ -155,6 +139,15 @@ def run_ours(size_name: str, duration: float, domain: int, env: dict[str, str], 
     result.p99_ms = totals["latency_ms"]["p99"]
     result.lost = int(totals["gaps"])
     result.mismatches = int(totals["mismatches"])
+    return result
+
+
+def _failed(result: Result, error: RunFailed, *procs: Child | None) -> Result:
+    """A run that did not get to its measurement: the reason noted in its result, its programs stopped."""
+    result.note = str(error).splitlines()[0]
+    for proc in procs:
+        if proc is not None:
+            proc.stop(signal.SIGTERM)
     return result
 
 
@@ -186,11 +179,7 @@ def run_ddsperf(size_name: str, duration: float, domain: int, env: dict[str, str
         _wait_line(sub, r"participant .*: gone", 30)
         sub.stop(signal.SIGINT, timeout=30)
     except RunFailed as error:
-        result.note = str(error).splitlines()[0]
-        for proc in (pub, sub):
-            if proc is not None:
-                proc.stop(signal.SIGTERM)
-        return result
+        return _failed(result, error, pub, sub)
     points, lost = [], 0
     for line in list(sub.records):
         arrived = line.time
@@ -317,6 +306,8 @@ def main(argv: list[str] | None = None) -> int:
                      "fragment size 1024..64000")
     ddsperf = ensure_ddsperf()
     env = dict(os.environ, CYCLONEDDS_URI=cyclone_uri(args.cyclone_defaults, args.socket_buffer, args.fragment_size))
+    c_env = dict(env, CYCLONEDDS_URI=cyclone_uri(args.cyclone_defaults, args.socket_buffer, args.fragment_size,
+                                                 c_tool=True))
     workdir = Path(tempfile.mkdtemp(prefix="bench-large-data-"))
     config = ("Cyclone defaults" if args.cyclone_defaults
               else f"{args.fragment_size}-byte fragments, socket buffers <= {args.socket_buffer}")
@@ -327,7 +318,7 @@ def main(argv: list[str] | None = None) -> int:
         for name in sizes:
             for tool in TOOLS if round_number % 2 else tuple(reversed(TOOLS)):
                 if tool == "ddsperf":
-                    result = run_ddsperf(name, args.duration, args.domain, env, ddsperf)
+                    result = run_ddsperf(name, args.duration, args.domain, c_env, ddsperf)
                 else:
                     result = run_ours(name, args.duration, args.domain, env, args.qos_file, workdir, tool == "ours-shm")
                 results.append(result)

@@ -23,16 +23,13 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
-import signal
 import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
-from automotive.bus import stats
 from automotive.bus.cli import ArgumentParser, add_domain_option
-from automotive.tools.children import Child, program_command
+from automotive.tools.children import StatsChild
 
 PROG = "automotive-bench-record"
 START_TIMEOUT = 120.0  # ten Python processes starting on a busy 2-core machine
@@ -52,30 +49,9 @@ REACTIVE: dict[str, tuple[list[str], str | None, str]] = {
 CONSUMERS = {"hmi": ["--ui", "console"], "camera_sub": []}
 
 
-class Program:
+def start_program(name: str, extra: list[str], domain: int, workdir: Path) -> StatsChild:
     """A program of the system with its status records (--stats) in ``workdir``."""
-
-    def __init__(self, name: str, extra: list[str], domain: int, workdir: Path):
-        self.name = name
-        self.stats = workdir / f"{name}.jsonl"
-        self.child = Child(name, program_command(name, "--domain", str(domain), "--stats", str(self.stats), *extra))
-
-    def records(self, kind: str) -> list[dict[str, Any]]:
-        return list(stats.read(self.stats, kind))
-
-    def wait_for(self, kind: str, timeout: float = START_TIMEOUT) -> dict[str, Any]:
-        deadline = time.monotonic() + timeout
-        while True:
-            found = self.records(kind)
-            if found:
-                return found[0]
-            if self.child.poll() is not None or time.monotonic() > deadline:
-                raise RuntimeError(f"{self.name}: no '{kind}' record within {timeout:.0f} s; last output:\n"
-                                   + "\n".join(self.child.lines[-10:]))
-            time.sleep(0.1)  # polling a file the program appends to
-
-    def stop(self, timeout: float = 30.0) -> None:
-        self.child.stop(signal.SIGINT, timeout=timeout)
+    return StatsChild.start(name, name, ["--domain", str(domain), *extra], workdir / f"{name}.jsonl")
 
 
 def file_checks(path: Path) -> tuple[int, int]:
@@ -106,16 +82,16 @@ def main(argv: list[str] | None = None) -> int:
     workdir = Path(tempfile.mkdtemp(prefix="bench-record-"))
     output = args.keep or workdir / "system.mcap"
 
-    recorder = Program("record", ["--output", str(output), "--overwrite",
-                                  "-D", f"config.compression={args.compression}"], args.domain, workdir)
-    processes: dict[str, Program] = {}
+    recorder = start_program("record", ["--output", str(output), "--overwrite",
+                                        "-D", f"config.compression={args.compression}"], args.domain, workdir)
+    processes: dict[str, StatsChild] = {}
     try:
-        recorder.wait_for("ready")
+        recorder.wait_record("ready", START_TIMEOUT)
         for name, extra in CONSUMERS.items():
-            processes[name] = Program(name, extra, args.domain, workdir)
+            processes[name] = start_program(name, extra, args.domain, workdir)
         for name, (extra, _, _) in {**REACTIVE, **PRODUCERS}.items():
-            processes[name] = Program(name, extra, args.domain, workdir)
-        processes["camera_sub"].wait_for("window")
+            processes[name] = start_program(name, extra, args.domain, workdir)
+        processes["camera_sub"].wait_record("window", START_TIMEOUT)
         print(f"system running; recording {args.seconds:g} s to {output}", flush=True)
         cpu_start, start = recorder.child.cpu_seconds(), time.monotonic()
         next_status = start + 10

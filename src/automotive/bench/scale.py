@@ -34,31 +34,18 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
-from automotive.bus import stats
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import Child, program_command, stop_all
+from automotive.tools.children import StatsChild, stop_all
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE
 
 PROG = "automotive-bench-scale"
 
 
-class Process:
+def start_process(name: str, module: str, args: list[str], env: dict[str, str], workdir: Path) -> StatsChild:
     """A program of the system with its status records (--stats) in ``workdir``."""
-
-    def __init__(self, name: str, module: str, args: list[str], env: dict[str, str], workdir: Path):
-        self.name = name
-        self.stats = workdir / f"{name}.jsonl"
-        self.child = Child(name, program_command(module, *args, "--stats", str(self.stats)), env=env)
-
-    def records(self, kind: str, start: float = 0.0, end: float = float("inf")) -> list[dict[str, Any]]:
-        return [record for record in stats.read(self.stats, kind) if start <= record["t"] < end]
-
-    def first(self, kind: str, match: Callable[[dict[str, Any]], bool] = lambda record: True) -> float | None:
-        """The time of the first record of ``kind`` that ``match`` accepts."""
-        return next((float(record["t"]) for record in self.records(kind) if match(record)), None)
+    return StatsChild.start(name, module, args, workdir / f"{name}.jsonl", env=env)
 
 
 def udp_receive_buffer_drops() -> int:
@@ -79,7 +66,7 @@ def wait_until(condition: Callable[[], float | None], timeout: float, what: str)
         time.sleep(0.05)  # polling files the other processes append to
 
 
-def stop(processes: list[Process], log_dir: Path | None) -> None:
+def stop(processes: list[StatsChild], log_dir: Path | None) -> None:
     stop_all([process.child for process in processes], timeout=15)
     if log_dir is not None:
         log_dir.mkdir(parents=True, exist_ok=True)
@@ -92,20 +79,20 @@ def stop(processes: list[Process], log_dir: Path | None) -> None:
 
 def run_one(n: int, domain: int, window: float, env: dict[str, str], timeout: float,
             log_dir: Path | None, stagger: float) -> dict[str, float]:
-    processes: list[Process] = []
+    processes: list[StatsChild] = []
     drops_before = udp_receive_buffer_drops()
     workdir = Path(tempfile.mkdtemp(prefix=f"bench-scale-n{n}-"))
     try:
-        fusion = Process("sensor_fusion", "sensor_fusion", ["--domain", str(domain)], env, workdir)
+        fusion = start_process("sensor_fusion", "sensor_fusion", ["--domain", str(domain)], env, workdir)
         processes.append(fusion)
         wait_until(lambda: fusion.first("ready"), timeout, "sensor fusion's reader")
         started = time.time()
-        visions: list[Process] = []
+        visions: list[StatsChild] = []
         for i in range(1, n + 1):
             if i > 1 and stagger > 0:
                 time.sleep(stagger)  # spreading the start-up load (--stagger), not synchronisation
-            visions.append(Process(f"vision-{i}", "vision", ["--domain", str(domain), "-D", f"config.sensorId={i}"],
-                                   env, workdir))
+            visions.append(start_process(f"vision-{i}", "vision",
+                                         ["--domain", str(domain), "-D", f"config.sensorId={i}"], env, workdir))
             processes.append(visions[-1])
 
         def all_ready() -> float | None:

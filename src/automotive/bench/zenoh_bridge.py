@@ -45,7 +45,7 @@ from typing import Any
 from automotive.bus import stats
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import Child, program_command
+from automotive.tools.children import Child, RunFailed, StatsChild, program_command
 from automotive.tools.zenoh_certs import CertificateError
 from automotive.tools.zenoh_certs import make as make_certificates
 
@@ -67,10 +67,6 @@ RELAY_PORT = 17447
 SHAPED_BUDGET = "rt/LidarTopic=2"
 
 
-class RunFailed(RuntimeError):
-    """A set-up that did not get to its measurement: the reason is noted in its row."""
-
-
 @dataclass
 class Row:
     scenario: str
@@ -84,31 +80,6 @@ class Row:
 
 
 @dataclass
-class Process:
-    """A child of the benchmark with its --stats file."""
-
-    child: Child
-    stats: Path
-
-    def records(self, kind: str) -> list[dict[str, Any]]:
-        return list(stats.read(self.stats, kind))
-
-    def wait_record(self, kind: str, timeout: float = START_TIMEOUT) -> dict[str, Any]:
-        """The first record of ``kind``, once the child wrote one."""
-        deadline = time.monotonic() + timeout
-        while True:
-            found = self.records(kind)
-            if found:
-                return found[0]
-            if self.child.poll() is not None:
-                raise RunFailed(f"{self.child.name} ended (exit {self.child.poll()}) before a '{kind}' record; "
-                                "last output: " + " | ".join(self.child.lines[-5:]))
-            if time.monotonic() > deadline:
-                raise RunFailed(f"{self.child.name}: no '{kind}' record within {timeout:.0f} s")
-            time.sleep(0.1)  # polling a file another process appends to
-
-
-@dataclass
 class Setup:
     """Where each site runs: a command prefix (ip netns exec ...), a DDS domain, and how B's bridge reaches A's."""
 
@@ -119,14 +90,14 @@ class Setup:
     domain_b: int
     listen_a: str = ""
     connect_b: str = ""
-    processes: list[Process] = field(default_factory=list)
+    processes: list[StatsChild] = field(default_factory=list)
 
-    def start(self, site: str, name: str, command: Sequence[str], env: dict[str, str], log_dir: Path) -> Process:
+    def start(self, site: str, name: str, command: Sequence[str], env: dict[str, str], log_dir: Path) -> StatsChild:
         """A child on a site (``command`` without the site's prefix) writing its records to ``--stats``."""
         label = f"{self.scenario}-{name}"
         records = log_dir / f"{label}.jsonl"
         prefix = self.prefix_a if site == "a" else self.prefix_b
-        process = Process(Child(label, [*prefix, *command, "--stats", str(records)], env=env), records)
+        process = StatsChild(Child(label, [*prefix, *command, "--stats", str(records)], env=env), records)
         self.processes.append(process)
         return process
 
@@ -281,7 +252,7 @@ def run_setup(setup: Setup, seconds: float, certs: Path, env: dict[str, str], lo
                         env, log_dir)
             setup.start("b", "bridge-b", bridge_command("site-b", setup.domain_b, certs, "", setup.connect_b, budget),
                         env, log_dir)
-        system: dict[str, Process] = {}
+        system: dict[str, StatsChild] = {}
         for site, names in (("a", SITE_A_APPS), ("b", SITE_B_APPS)):
             domain = setup.domain_a if site == "a" else setup.domain_b
             for name in names:
@@ -289,7 +260,8 @@ def run_setup(setup: Setup, seconds: float, certs: Path, env: dict[str, str], lo
                     ["--ui", "console"] if name == "hmi" else []
                 system[name] = setup.start(site, name, program_command(name, "--domain", str(domain), *extra),
                                            env, log_dir)
-        system["vehicle_platform"].wait_record("command")  # the loop runs: A's objects to B, B's commands to A
+        # the loop runs: A's objects to B, B's commands to A
+        system["vehicle_platform"].wait_record("command", START_TIMEOUT)
         probes = {site: setup.start(site, f"probe-{site}",
                                     probe_command(setup.domain_a if site == "a" else setup.domain_b, seconds),
                                     env, log_dir)
@@ -315,10 +287,10 @@ def run_camera(setup: Setup, seconds: float, env: dict[str, str], log_dir: Path)
     common = ["-D", "config.imageSize=full"]  # the system's camera flow (the bridges bridge that type)
     sub = setup.start("b", "camera_sub", program_command("camera_sub", "--domain", str(setup.domain_b), *common,
                                                          "--exit-with-publisher"), env, log_dir)
-    sub.wait_record("ready")
+    sub.wait_record("ready", START_TIMEOUT)
     pub = setup.start("a", "camera_pub", program_command("camera_pub", "--domain", str(setup.domain_a), *common,
                                                          "-D", "config.pubInterval=0"), env, log_dir)
-    sub.wait_record("window")  # frames arrive
+    sub.wait_record("window", START_TIMEOUT)  # frames arrive
     time.sleep(seconds)  # the measured window
     pub.child.stop(signal.SIGINT, timeout=30)
     # camera_sub records its totals as it stops (across a bridge, the bridge's writer does not leave): its rate is

@@ -102,6 +102,9 @@ class NetworkConfig:
     large_data: bool = False
     fragment_size: int = LARGE_DATA_FRAGMENT_SIZE
     socket_buffer: str = LARGE_DATA_SOCKET_BUFFER
+    # False for Cyclone's C tools of Debian (ddsperf 0.10.2), which stop on the loopback peer's PruneDelay attribute
+    # (unknown before 0.11) where the Python runtime's Cyclone 11 needs it to probe for late joiners forever.
+    prune_delay: bool = True
 
     @classmethod
     def from_settings(cls, network: str = "", interface: str = "", peers: list[str] | None = None,
@@ -132,7 +135,8 @@ class NetworkConfig:
         if self.mode == PEERS:
             return self._peers_xml(plan or self.peer_plan())
         if self.mode == LOOPBACK:
-            discovery = (f'<Discovery><Peers><Peer address="{LOCALHOST}" PruneDelay="{PROBE_FOREVER}"/></Peers>'
+            prune = f' PruneDelay="{PROBE_FOREVER}"' if self.prune_delay else ""
+            discovery = (f'<Discovery><Peers><Peer address="{LOCALHOST}"{prune}/></Peers>'
                          f"{self._participant_index_xml()}"
                          f"<SPDPInterval>{LOOPBACK_ANNOUNCE_INTERVAL}</SPDPInterval></Discovery>")
             return self._domain_xml(_interfaces_xml("lo"), False, discovery)

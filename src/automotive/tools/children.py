@@ -6,7 +6,9 @@ The one helper for every program that runs other programs (the launcher, the ben
   and handed to an optional callback (the launcher writes log files and its console);
 - :meth:`Child.wait_for` waits, bounded, until a line matches (never a fixed sleep);
 - :meth:`Child.stop` sends SIGTERM (or another signal), waits, then SIGKILL;
-- :meth:`Child.cpu_seconds` and :meth:`Child.memory_bytes` come from psutil (children included if asked).
+- :meth:`Child.cpu_seconds` and :meth:`Child.memory_bytes` come from psutil (children included if asked);
+- :class:`StatsChild` is a child started with ``--stats FILE``: its status records (JSON lines, ``bus.stats``) read
+  and awaited, the way every benchmark takes its figures from the programs it runs.
 
 :func:`program_command` is how a program of the project is started: ``python -m <module>`` with the running
 interpreter, so the child runs the same installation as the parent (no PATH, no PYTHONPATH needed).
@@ -26,9 +28,11 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import psutil
+
+from automotive.bus import stats
 
 DEFAULT_TIMEOUT = 30.0
 STDOUT, STDERR = "stdout", "stderr"
@@ -277,6 +281,72 @@ def stop_all(children: Sequence[Child], sig: int = signal.SIGTERM, timeout: floa
             child.send_signal(signal.SIGKILL)
             child.process.wait()
         child.join_output()
+
+
+Record = dict[str, Any]
+
+
+def any_record(record: Record) -> bool:
+    return True
+
+
+class RunFailed(RuntimeError):
+    """A child did not do what was awaited: it ended first."""
+
+
+class RecordTimeout(RunFailed, TimeoutError):
+    """A record that was awaited did not come in time."""
+
+
+class StatsChild:
+    """A program of the project started with ``--stats FILE``: the child and the status records it appends."""
+
+    def __init__(self, child: Child, stats_path: Path):
+        self.child = child
+        self.stats = stats_path
+
+    @classmethod
+    def start(cls, name: str, program: str, args: Sequence[str], stats_path: Path, *,
+              env: dict[str, str] | None = None, prefix: Sequence[str] = (),
+              python: Sequence[str] = ()) -> StatsChild:
+        """Start ``program`` (a name for :func:`program_command`) as ``name`` with ``--stats stats_path``;
+        ``prefix`` goes before the whole command (``ip netns exec ...``), ``python`` before the interpreter."""
+        command = program_command(program, *args, "--stats", str(stats_path), python=python)
+        return cls(Child(name, [*prefix, *command], env=env), stats_path)
+
+    @property
+    def name(self) -> str:
+        return self.child.name
+
+    def records(self, kind: str, since: float = 0.0, until: float = float("inf"),
+                match: Callable[[Record], bool] = any_record) -> list[Record]:
+        """The records of ``kind`` written from ``since`` to before ``until`` (time.time) that ``match`` accepts."""
+        return [record for record in stats.read(self.stats, kind)
+                if since <= record["t"] < until and match(record)]
+
+    def first(self, kind: str, match: Callable[[Record], bool] = any_record) -> float | None:
+        """The time of the first record of ``kind`` that ``match`` accepts (None: none yet)."""
+        return next((float(record["t"]) for record in self.records(kind, match=match)), None)
+
+    def wait_record(self, kind: str, timeout: float = DEFAULT_TIMEOUT, *, since: float = 0.0, count: int = 1,
+                    match: Callable[[Record], bool] = any_record, what: str | None = None) -> Record:
+        """The ``count``-th record of ``kind`` from ``since`` on that ``match`` accepts, once the child wrote it;
+        :class:`RunFailed` if the child ends first, :class:`RecordTimeout` after ``timeout`` seconds."""
+        what = what or f"a '{kind}' record"
+        deadline = time.monotonic() + timeout
+        while True:
+            found = self.records(kind, since, match=match)
+            if len(found) >= count:
+                return found[count - 1]
+            if self.child.poll() is not None:
+                raise RunFailed(f"{self.name} ended (exit {self.child.poll()}) before {what}; last output: "
+                                + " | ".join(self.child.lines[-5:]))
+            if time.monotonic() > deadline:
+                raise RecordTimeout(f"{self.name}: no {what} within {timeout:g} s")
+            time.sleep(0.05)  # polling a file another process appends to
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 30.0) -> int:
+        return self.child.stop(sig, timeout=timeout)
 
 
 def alive(pid: int) -> bool:
