@@ -24,6 +24,7 @@ import pytest
 from apprunner import AppRunner, CommandProcess
 
 from automotive.apps.hmi import ALERT_TEXTS
+from automotive.tools import netlab
 from automotive.tools.children import program_command
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -118,22 +119,9 @@ def wait_until_running(host: Host, timeout: float = 10.0) -> None:
         time.sleep(0.05)  # polling the kernel's link state, which nothing announces to us
 
 
-def netns_available() -> str | None:
-    if os.geteuid() != 0:
-        return "needs root for ip netns"
-    if shutil.which("ip") is None:
-        return "the ip command (iproute2) is missing"
-    probe = f"autoprobe-{os.getpid()}"
-    result = run("ip", "netns", "add", probe)
-    if result.returncode != 0:
-        return f"ip netns is not permitted here: {result.stderr.strip()}"
-    run("ip", "netns", "del", probe)
-    return None
-
-
 @pytest.fixture
 def hosts(domain_id: int) -> Iterator[TwoHosts]:
-    reason = netns_available()
+    reason = netlab.unavailable()
     if reason is not None:
         pytest.skip(reason)
     suffix = f"{os.getpid()}-{next(_names)}"

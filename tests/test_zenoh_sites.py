@@ -26,9 +26,9 @@ from typing import Any
 
 import pytest
 from apprunner import AppRunner, CommandProcess
-from test_multihost import must, netns_available, run, wait_until_running
 
 from automotive.bus import stats
+from automotive.tools import netlab
 from automotive.tools.children import program_command
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -48,10 +48,16 @@ _names = itertools.count()
 @dataclass
 class Site:
     name: str
-    namespace: str
+    namespace_name: str
     certificate: Path
     key: Path
     ca: Path
+    namespace: netlab.Namespace | None = None
+
+    @property
+    def net(self) -> netlab.Namespace:
+        assert self.namespace is not None, f"{self.name}: namespace not made yet"
+        return self.namespace
 
 
 @dataclass
@@ -67,7 +73,7 @@ class Sites:
     b_connects_to: str = f"{ADDRESS_A}:{PORT}"  # A's router, or the delaying relay in front of it
 
     def start(self, site: Site, label: str, command: list[str]) -> CommandProcess:
-        return self.runner.start_command(f"{label}@{site.name}", ["ip", "netns", "exec", site.namespace, *command])
+        return self.runner.start_command(f"{label}@{site.name}", site.net.exec(*command))
 
     def app(self, site: Site, name: str, *args: str) -> CommandProcess:
         """An application on a site's databus (loopback inside the namespace: CYCLONEDDS_URI from conftest)."""
@@ -92,13 +98,8 @@ class Sites:
 
     def shape(self) -> None:
         """25 ms and 0.5 % loss each way, 20 Mbit/s, on the A-B link (netem, or tbf + nftables + a relay)."""
-        netem = ["netem", "delay", f"{DELAY_MS}ms", "loss", f"{LOSS_PER_MILLE / 10}%", "rate", RATE]
-        if all(self._tc(site, device, *netem) for site, device in self.ab_ends):
+        if netlab.shape(self.ab_ends, DELAY_MS, LOSS_PER_MILLE, RATE):
             return
-        for site, device in self.ab_ends:
-            assert self._tc(site, device, "tbf", "rate", RATE, "burst", "64kb", "latency", "400ms"), \
-                f"tc tbf failed on {device}"
-            self._nft(site, device, "zloss", f"numgen random mod 1000 < {LOSS_PER_MILLE} counter drop")
         relay = self.start(self.b, "delay_relay", program_command("delay_relay", "--listen", f"127.0.0.1:{RELAY_PORT}",
                                                                   "--target", f"{ADDRESS_A}:{PORT}",
                                                                   "--delay-ms", str(DELAY_MS)))
@@ -107,29 +108,14 @@ class Sites:
 
     def cut(self) -> None:
         """The A-B link carries nothing (every packet dropped as it arrives, both ways)."""
-        for site, device in self.ab_ends:
-            self._nft(site, device, "zcut", "counter drop")
+        netlab.cut(self.ab_ends)
 
     def mend(self) -> None:
-        for site, _ in self.ab_ends:
-            must("ip", "netns", "exec", site.namespace, "nft", "delete", "table", "netdev", "zcut")
+        netlab.mend(self.ab_ends)
 
     @property
-    def ab_ends(self) -> list[tuple[Site, str]]:
-        return [(self.a, "veth-ab"), (self.b, "veth-ba")]
-
-    @staticmethod
-    def _tc(site: Site, device: str, *qdisc: str) -> bool:
-        return run("ip", "netns", "exec", site.namespace, "tc", "qdisc", "replace", "dev", device, "root",
-                   *qdisc).returncode == 0
-
-    @staticmethod
-    def _nft(site: Site, device: str, table: str, rule: str) -> None:
-        rules = (f'table netdev {table} {{\n chain ingress {{\n  type filter hook ingress device "{device}" '
-                 f"priority 0; policy accept;\n  {rule}\n }}\n}}\n")
-        result = subprocess.run(["ip", "netns", "exec", site.namespace, "nft", "-f", "-"], input=rules,
-                                capture_output=True, text=True, timeout=20)
-        assert result.returncode == 0, f"nft: {result.stderr.strip()}"
+    def ab_ends(self) -> list[tuple[netlab.Namespace, str]]:
+        return [(self.a.net, "veth-ab"), (self.b.net, "veth-ba")]
 
 
 def last_json_line(path: Path) -> dict[str, Any]:
@@ -148,7 +134,7 @@ def make_certificates(folder: Path) -> None:
 
 @pytest.fixture
 def sites(domain_id: int, tmp_path: Path) -> Iterator[Sites]:
-    reason = netns_available()
+    reason = netlab.unavailable()
     if reason is not None:
         pytest.skip(reason)
     make_certificates(tmp_path)
@@ -159,34 +145,18 @@ def sites(domain_id: int, tmp_path: Path) -> Iterator[Sites]:
     # Site C trusts the real CA (its certificate is public), but its own certificate is signed by another CA.
     c = Site("site-c", f"zc-{suffix}", rogue / "site-c.pem", rogue / "site-c.key", trusted / "ca.pem")
     runner = AppRunner(ROOT)
-    created: list[str] = []
     try:
         for site in (a, b, c):
-            must("ip", "netns", "add", site.namespace)
-            created.append(site.namespace)
-            must("ip", "-n", site.namespace, "link", "set", "lo", "up")
+            site.namespace = netlab.Namespace(site.namespace_name)
         # Created straight into the namespaces: nothing of the links ever appears on the real host.
-        for (one, one_device, one_address), (other, other_device, other_address) in (
-                ((a, "veth-ab", ADDRESS_A), (b, "veth-ba", ADDRESS_B)),
-                ((a, "veth-ac", ADDRESS_A_FOR_C), (c, "veth-ca", ADDRESS_C))):
-            must("ip", "link", "add", one_device, "netns", one.namespace, "type", "veth", "peer", "name",
-                 other_device, "netns", other.namespace)
-            for site, device, address in ((one, one_device, one_address), (other, other_device, other_address)):
-                must("ip", "-n", site.namespace, "addr", "add", f"{address}/24", "dev", device)
-                must("ip", "-n", site.namespace, "link", "set", device, "multicast", "off", "up")
-        for site, device in ((a, "veth-ab"), (a, "veth-ac"), (b, "veth-ba"), (c, "veth-ca")):
-            wait_until_running(_Host(site.namespace, device))
+        netlab.veth(a.net, "veth-ab", ADDRESS_A, b.net, "veth-ba", ADDRESS_B)
+        netlab.veth(a.net, "veth-ac", ADDRESS_A_FOR_C, c.net, "veth-ca", ADDRESS_C)
         yield Sites(a, b, c, runner, domain_id, tmp_path)
     finally:
         runner.stop_all()
-        for namespace in created:
-            run("ip", "netns", "del", namespace)
-
-
-@dataclass
-class _Host:  # what test_multihost.wait_until_running reads
-    namespace: str
-    device: str
+        for site in (a, b, c):
+            if site.namespace is not None:
+                site.namespace.delete()
 
 
 def start_system(sites: Sites) -> dict[str, CommandProcess]:

@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 
 from automotive.bus.cli import ArgumentParser, add_domain_option
+from automotive.tools import netlab
 from automotive.tools.children import Child
 
 PROG = "automotive-bench-discovery"
@@ -55,31 +56,19 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, max(0, round(q / 100 * (len(ordered) - 1))))]
 
 
-class Namespace:
+class Namespace(netlab.Namespace):
     """A network namespace of this run, with nftables counters of the datagrams sent to metatraffic ports."""
 
     def __init__(self, domain: int):
-        self.name = f"bench-discovery-{os.getpid()}"
-        run("ip", "netns", "add", self.name)
-        run("ip", "-n", self.name, "link", "set", "lo", "up")
+        super().__init__(f"bench-discovery-{os.getpid()}")
         # Well-known ports of the domain: 7400 + 250 x domain + 10 + 2 x index (metatraffic), + 1 (user data).
         base = 7400 + 250 * domain
-        rules = (f"table inet bench {{\n chain out {{\n  type filter hook output priority 0; policy accept;\n"
+        self.nft(f"table inet bench {{\n chain out {{\n  type filter hook output priority 0; policy accept;\n"
                  f"  udp dport {base + 10}-{base + 249} udp dport & 1 == 0 counter\n }}\n}}\n")
-        subprocess.run(["ip", "netns", "exec", self.name, "nft", "-f", "-"], input=rules, text=True, check=True)
-
-    def exec(self, *command: str) -> list[str]:
-        return ["ip", "netns", "exec", self.name, *command]
 
     def datagrams(self) -> int:
         listing = run(*self.exec("nft", "list", "table", "inet", "bench")).stdout
         return sum(int(n) for n in re.findall(r"counter packets (\d+)", listing))
-
-    def pids(self) -> list[int]:
-        return [int(pid) for pid in run("ip", "netns", "pids", self.name).stdout.split()]
-
-    def delete(self) -> None:
-        run("ip", "netns", "del", self.name, check=False)
 
 
 def thread_cpu_s(pids: list[int], names: tuple[str, ...]) -> float:
@@ -159,7 +148,10 @@ def bench(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     domain = args.domain
-    namespace = Namespace(domain)
+    try:
+        namespace = Namespace(domain)
+    except netlab.NetlabError as error:
+        raise SystemExit(f"{PROG}: {error}") from None
     log_dir = Path(tempfile.mkdtemp(prefix="bench-discovery-"))
     env = {key: value for key, value in os.environ.items() if key != "CYCLONEDDS_URI"}
     env.update(DISPLAY="", WAYLAND_DISPLAY="")

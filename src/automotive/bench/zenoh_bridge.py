@@ -33,7 +33,6 @@ import argparse
 import os
 import shutil
 import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -45,6 +44,7 @@ from typing import Any
 from automotive.bus import stats
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
 from automotive.bus.network import NetworkConfig
+from automotive.tools import netlab
 from automotive.tools.children import Child, RunFailed, StatsChild, program_command
 from automotive.tools.zenoh_certs import CertificateError
 from automotive.tools.zenoh_certs import make as make_certificates
@@ -156,75 +156,42 @@ def probe_command(domain: int, seconds: float) -> list[str]:
 
 # -- set-ups ----------------------------------------------------------------------------------------------------
 
-def run(*command: str, check: bool = True) -> subprocess.CompletedProcess[str]:
-    result = subprocess.run(list(command), capture_output=True, text=True, timeout=30)
-    if check and result.returncode != 0:
-        raise RunFailed(f"{' '.join(command)}: {result.stderr.strip()}")
-    return result
-
-
-class Namespaces:
-    """Two namespaces joined by a shaped veth pair (created here, deleted by close())."""
+class ShapedLink:
+    """Sites A and B in two namespaces joined by a shaped veth pair (made by open(), deleted by close())."""
 
     def __init__(self, env: dict[str, str]) -> None:
-        suffix = os.getpid()
-        self.a, self.b = f"zbench-a-{suffix}", f"zbench-b-{suffix}"
         self.env = env
-        self.created: list[str] = []
+        self.namespaces: list[netlab.Namespace] = []
         self.relay: Child | None = None
         self.connect_b = f"{ADDRESS_A}:{PORT}"
         self.how = ""
 
-    def open(self) -> None:
-        for namespace in (self.a, self.b):
-            run("ip", "netns", "add", namespace)
-            self.created.append(namespace)
-            run("ip", "-n", namespace, "link", "set", "lo", "up")
-        run("ip", "link", "add", "veth-ab", "netns", self.a, "type", "veth", "peer", "name", "veth-ba", "netns",
-            self.b)
-        for namespace, device, address in ((self.a, "veth-ab", ADDRESS_A), (self.b, "veth-ba", ADDRESS_B)):
-            run("ip", "-n", namespace, "addr", "add", f"{address}/24", "dev", device)
-            run("ip", "-n", namespace, "link", "set", device, "multicast", "off", "up")
-        deadline = time.monotonic() + 10
-        while any("LOWER_UP" not in run("ip", "-n", ns, "link", "show", dev).stdout
-                  for ns, dev in ((self.a, "veth-ab"), (self.b, "veth-ba"))):
-            if time.monotonic() > deadline:
-                raise RunFailed("the veth pair did not come up within 10 s")
-            time.sleep(0.05)  # polling the kernel's link state
-        netem = ["netem", "delay", f"{DELAY_MS}ms", "loss", f"{LOSS_PER_MILLE / 10}%", "rate", RATE]
-        if all(self._tc(ns, dev, netem) for ns, dev in ((self.a, "veth-ab"), (self.b, "veth-ba"))):
+    def open(self) -> tuple[netlab.Namespace, netlab.Namespace]:
+        suffix = os.getpid()
+        a = netlab.Namespace(f"zbench-a-{suffix}")
+        self.namespaces.append(a)
+        b = netlab.Namespace(f"zbench-b-{suffix}")
+        self.namespaces.append(b)
+        netlab.veth(a, "veth-ab", ADDRESS_A, b, "veth-ba", ADDRESS_B)
+        if netlab.shape([(a, "veth-ab"), (b, "veth-ba")], DELAY_MS, LOSS_PER_MILLE, RATE):
             self.how = "tc netem"
-            return
-        for namespace, device in ((self.a, "veth-ab"), (self.b, "veth-ba")):
-            if not self._tc(namespace, device, ["tbf", "rate", RATE, "burst", "64kb", "latency", "400ms"]):
-                raise RunFailed("neither tc netem nor tc tbf works here")
-            rules = (f'table netdev zloss {{\n chain ingress {{\n  type filter hook ingress device "{device}" '
-                     f"priority 0; policy accept;\n  numgen random mod 1000 < {LOSS_PER_MILLE} counter drop\n }}\n}}\n")
-            result = subprocess.run(["ip", "netns", "exec", namespace, "nft", "-f", "-"], input=rules,
-                                    capture_output=True, text=True, timeout=20)
-            if result.returncode != 0:
-                raise RunFailed(f"nft: {result.stderr.strip()}")
+            return a, b
         self.relay = Child("delay_relay", program_command("delay_relay", "--listen", f"127.0.0.1:{RELAY_PORT}",
                                                           "--target", f"{ADDRESS_A}:{PORT}", "--delay-ms",
-                                                          str(DELAY_MS), python=["ip", "netns", "exec", self.b]),
-                           env=self.env)
+                                                          str(DELAY_MS), python=b.prefix), env=self.env)
         try:
             self.relay.wait_for(r"^relay ready$", timeout=60)
         except AssertionError as error:
             raise RunFailed(f"the delaying relay did not start: {str(error).splitlines()[0]}") from None
         self.connect_b = f"127.0.0.1:{RELAY_PORT}"
         self.how = "tc tbf (rate), nftables (loss), a delaying relay (automotive-delay-relay)"
-
-    @staticmethod
-    def _tc(namespace: str, device: str, qdisc: list[str]) -> bool:
-        return run("ip", "netns", "exec", namespace, "tc", "qdisc", "replace", "dev", device, "root", *qdisc,
-                   check=False).returncode == 0
+        return a, b
 
     def close(self) -> None:
         if self.relay is not None:
             self.relay.stop()
-        for namespace in self.created:
-            run("ip", "netns", "del", namespace, check=False)
+        for namespace in self.namespaces:
+            namespace.delete()
 
 
 def bridge_command(site: str, domain: int, certs: Path, listen: str, connect: str, budget: str = "") -> list[str]:
@@ -323,22 +290,21 @@ def measure(args: argparse.Namespace, scenarios: list[str], log_dir: Path, certs
             rows += run_setup(Setup("loopback", [], [], args.domain, args.domain + 1, f"127.0.0.1:{PORT + 10000}",
                                     f"127.0.0.1:{PORT + 10000}"), args.seconds, certs, env, log_dir)
         else:
-            if os.geteuid() != 0 or shutil.which("ip") is None:
-                notes.append("shaped: skipped (needs root and iproute2 for network namespaces)")
+            reason = netlab.unavailable()
+            if reason is not None:
+                notes.append(f"shaped: skipped ({reason})")
                 continue
-            namespaces = Namespaces(env)
+            link = ShapedLink(env)
             try:
-                namespaces.open()
+                site_a, site_b = link.open()
                 notes.append(f"shaped link: {DELAY_MS} ms, {LOSS_PER_MILLE / 10} % loss each way, {RATE}/s, "
-                             f"by {namespaces.how}")
-                rows += run_setup(Setup("shaped", ["ip", "netns", "exec", namespaces.a],
-                                        ["ip", "netns", "exec", namespaces.b], args.domain, args.domain,
-                                        f"{ADDRESS_A}:{PORT}", namespaces.connect_b), args.seconds, certs, env,
-                                  log_dir)
-            except RunFailed as error:
+                             f"by {link.how}")
+                rows += run_setup(Setup("shaped", site_a.prefix, site_b.prefix, args.domain, args.domain,
+                                        f"{ADDRESS_A}:{PORT}", link.connect_b), args.seconds, certs, env, log_dir)
+            except (RunFailed, netlab.NetlabError) as error:
                 notes.append(f"shaped: {error}")
             finally:
-                namespaces.close()
+                link.close()
     print(f"{'set-up':<9} {'flow':<44} {'samples/s':>9} {'MB/s':>8} {'p50 ms':>8} {'p99 ms':>8}  notes")
     for row in rows:
         print(f"{row.scenario:<9} {row.flow:<44} {fmt(row.samples_per_s):>9} {fmt(row.mb_per_s, 3):>8} "
