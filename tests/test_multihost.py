@@ -11,7 +11,6 @@ from __future__ import annotations
 import itertools
 import os
 import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -54,6 +53,12 @@ class Host:
     namespace: str
     device: str
     address: str
+    net: netlab.Namespace | None = None
+
+    @property
+    def end(self) -> tuple[netlab.Namespace, str]:
+        assert self.net is not None, f"{self.namespace} not made yet"
+        return self.net, self.device
 
 
 @dataclass
@@ -78,45 +83,12 @@ class TwoHosts:
             assert not lines, f"{process.name} printed Cyclone DDS log lines:\n" + "\n".join(lines[:10])
 
     def add_loss(self, percent: int) -> None:
-        """Drop ``percent`` % of the packets arriving on each end of the link (both directions)."""
-        for host in (self.a, self.b):
-            netem = run("ip", "netns", "exec", host.namespace, "tc", "qdisc", "add", "dev", host.device, "root",
-                        "netem", "loss", f"{percent}%")
-            if netem.returncode == 0:
-                continue
-            # This kernel may lack netem: nftables drops the same share of UDP packets on the link's ingress.
-            if shutil.which("nft") is None:
-                pytest.skip(f"no packet loss available: tc netem failed ({netem.stderr.strip()}) and nft is missing")
-            rules = (f'table netdev lossy {{\n chain ingress {{\n  type filter hook ingress device "{host.device}" '
-                     f"priority 0; policy accept;\n  meta l4proto udp numgen random mod 100 < {percent} counter drop\n"
-                     " }\n}\n")
-            nft = subprocess.run(["ip", "netns", "exec", host.namespace, "nft", "-f", "-"], input=rules,
-                                 capture_output=True, text=True, timeout=20)
-            if nft.returncode != 0:
-                pytest.skip(f"no packet loss available: tc netem ({netem.stderr.strip()}), nft "
-                            f"({nft.stderr.strip()})")
+        """Drop ``percent`` % of the UDP packets arriving on each end of the link (both directions)."""
+        netlab.lose([self.a.end, self.b.end], percent)
 
     def dropped(self) -> int:
-        """Packets dropped on the link so far (netem's statistics, or the nftables rules' counters)."""
-        total = 0
-        for host in (self.a, self.b):
-            qdisc = run("ip", "netns", "exec", host.namespace, "tc", "-s", "qdisc", "show", "dev", host.device).stdout
-            if "netem" in qdisc:
-                total += sum(int(n) for n in re.findall(r"dropped (\d+)", qdisc))
-                continue
-            listing = run("ip", "netns", "exec", host.namespace, "nft", "list", "table", "netdev", "lossy").stdout
-            total += sum(int(n) for n in re.findall(r"counter packets (\d+)", listing))
-        return total
-
-
-def wait_until_running(host: Host, timeout: float = 10.0) -> None:
-    """Wait until the host's end of the link is running, so that no process starts on a host that has only
-    loopback to offer."""
-    deadline = time.monotonic() + timeout
-    while "LOWER_UP" not in run("ip", "-n", host.namespace, "link", "show", host.device).stdout:
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{host.device} in {host.namespace} not running after {timeout:.0f} s")
-        time.sleep(0.05)  # polling the kernel's link state, which nothing announces to us
+        """Packets dropped on the link so far."""
+        return netlab.dropped([self.a.end, self.b.end])
 
 
 @pytest.fixture
@@ -128,25 +100,17 @@ def hosts(domain_id: int) -> Iterator[TwoHosts]:
     a = Host(f"auto-a-{suffix}", "veth-a", ADDRESS_A)
     b = Host(f"auto-b-{suffix}", "veth-b", ADDRESS_B)
     runner = AppRunner(ROOT)
-    created: list[str] = []
     try:
         for host in (a, b):
-            must("ip", "netns", "add", host.namespace)
-            created.append(host.namespace)
+            host.net = netlab.Namespace(host.namespace)
         # Created straight into the namespaces: nothing of the link ever appears on the real host.
-        must("ip", "link", "add", a.device, "netns", a.namespace, "type", "veth", "peer", "name", b.device, "netns",
-             b.namespace)
-        for host in (a, b):
-            must("ip", "-n", host.namespace, "addr", "add", f"{host.address}/24", "dev", host.device)
-            must("ip", "-n", host.namespace, "link", "set", host.device, "multicast", "off", "up")
-            must("ip", "-n", host.namespace, "link", "set", "lo", "up")
-        for host in (a, b):
-            wait_until_running(host)
+        netlab.veth(*a.end, a.address, *b.end, b.address)
         yield TwoHosts(a, b, runner, domain_id)
     finally:
         runner.stop_all()
-        for namespace in created:
-            run("ip", "netns", "del", namespace)
+        for host in (a, b):
+            if host.net is not None:
+                host.net.delete()
 
 
 def test_alert_reaches_the_other_host_and_the_command_flows_back(hosts: TwoHosts) -> None:
@@ -332,6 +296,10 @@ def late_rti_participant(hosts: TwoHosts, launcher: CommandProcess, *rti_args: s
         "unshare", "--ipc", sys.executable, str(ROOT / "tests" / "rti_peer.py"), "--domain", str(hosts.domain_id),
         *rti_args, "--read", ",".join(f"{name}:DefaultReader" for name in LATE_READS),
         "--write", 'Circle={"color": "ORANGE", "x": 100, "y": 100, "shapesize": 30}'])
+    # The bound counts from the RTI participant's creation, not from the start of a Python process that imports
+    # RTI's Connector (several seconds on a loaded 2-core machine: not what this test is about).
+    rti.wait_for(r"^rti peer running$", timeout=120)
+    joined = time.monotonic()
     for name in LATE_READS:
         rti.wait_for(rf"^reader {name} matched [1-9]", timeout=LATE_JOIN_BOUND_S + joined - time.monotonic())
     rti.wait_for(r"^writer Circle matched [1-9]", timeout=LATE_JOIN_BOUND_S + joined - time.monotonic())

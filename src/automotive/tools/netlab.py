@@ -11,6 +11,7 @@ installs.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import time
@@ -131,6 +132,30 @@ def shape(ends: Sequence[tuple[Namespace, str]], delay_ms: float, loss_per_mille
             raise NetlabError(f"neither tc netem nor tc tbf works on {device} in {namespace.name}")
         namespace.nft_ingress(device, "netlab_loss", f"numgen random mod 1000 < {loss_per_mille} counter drop")
     return False
+
+
+def lose(ends: Sequence[tuple[Namespace, str]], percent: int, protocol: str = "udp") -> None:
+    """Drop ``percent`` % of the ``protocol`` packets arriving at every end (netem where the kernel has it, else
+    nftables); :func:`dropped` counts them."""
+    for namespace, device in ends:
+        if _qdisc(namespace, device, "netem", "loss", f"{percent}%"):
+            continue
+        namespace.nft_ingress(device, "netlab_lossy",
+                              f"meta l4proto {protocol} numgen random mod 100 < {percent} counter drop")
+
+
+def dropped(ends: Sequence[tuple[Namespace, str]]) -> int:
+    """Packets dropped so far at these ends by :func:`lose` or :func:`shape` (netem statistics, nftables counters)."""
+    total = 0
+    for namespace, device in ends:
+        qdisc = run(*namespace.exec("tc", "-s", "qdisc", "show", "dev", device), check=False).stdout
+        if "netem" in qdisc:
+            total += sum(int(n) for n in re.findall(r"dropped (\d+)", qdisc))
+            continue
+        for table in ("netlab_lossy", "netlab_loss"):
+            listing = run(*namespace.exec("nft", "list", "table", "netdev", table), check=False).stdout
+            total += sum(int(n) for n in re.findall(r"counter packets (\d+)", listing))
+    return total
 
 
 def cut(ends: Sequence[tuple[Namespace, str]]) -> None:
