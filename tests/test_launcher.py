@@ -173,3 +173,14 @@ def test_stop_without_a_launcher_says_so(tmp_path: Path) -> None:
     result = subprocess.run([*LAUNCH, "stop", "--log-dir", str(tmp_path)], capture_output=True,
                             text=True, timeout=20)
     assert result.returncode == 1 and "no launcher is running" in result.stderr
+
+
+def test_a_child_that_keeps_no_lines_hands_each_to_its_callback() -> None:
+    """The launcher's children (keep=False): every line reaches the callback, none stays in the parent's memory
+    (a system that runs for hours prints millions of lines; issue 20)."""
+    seen: list[str] = []
+    child = children.Child("printer", [sys.executable, "-c", "for n in range(2000): print(f'line {n}')"],
+                           on_line=lambda child, line: seen.append(line.text), keep=False)
+    assert child.wait_exit(timeout=30) == 0
+    assert seen == [f"line {n}" for n in range(2000)]
+    assert child.records == [] and child._new_lines.qsize() <= 1  # at most the end-of-stream mark

@@ -443,6 +443,7 @@ class Supervisor:
                 child = Child(spec.name, spec.command, env=env, separate_stderr=True,
                               new_session=True,  # Ctrl-C reaches the launcher only
                               preexec_fn=set_parent_death_signal, read=False, on_line=self._on_line,
+                              keep=False,  # every line goes to the log file and the console, none stays in memory
                               on_end=lambda child, stream: self.wake.set())  # ending: look at it now
             except OSError as error:
                 self.console.say(f"cannot start {spec.name}: {error}")
