@@ -247,7 +247,8 @@ def report(series: list[Series], seen: Seen, args: argparse.Namespace) -> int:
         early_peak = max(one.between(*early), default=None)
         late_peak = max(one.between(*late), default=None) if comparable else None
         print(f"{one.name:<20} {start:>9,} {one.rss_kB[-1]:>9,} {max(one.rss_kB):>9,} "
-              f"{'-' if slope is None else f'{slope:,.0f}':>11} {'-' if early_peak is None else f'{early_peak:,}':>15} "
+              f"{'-' if slope is None else f'{round(slope):,}':>11} "
+              f"{'-' if early_peak is None else f'{early_peak:,}':>15} "
               f"{'-' if late_peak is None else f'{late_peak:,}':>13} {one.cpu_percent():>6.1f}"
               f"{'  (outside the goal)' if one.name == LAUNCHER else ''}{'  ' + one.ended if one.ended else ''}")
         if one.name == LAUNCHER:
@@ -275,7 +276,8 @@ def report(series: list[Series], seen: Seen, args: argparse.Namespace) -> int:
                                               f"{args.warmup:g}-min warm-up")
     print(f"chart: {args.chart}")
     print("goal met" if not failures else "goal NOT met: " + "; ".join(failures))
-    print(f"rss_slope_kB_per_h_max={worst_slope:.0f} app={worst_name}")
+    # round(), not :.0f, so that a flat line's -0.0 prints as 0; NaN when no application had enough samples
+    print(f"rss_slope_kB_per_h_max={'nan' if worst_slope != worst_slope else round(worst_slope)} app={worst_name}")
     return 0
 
 
