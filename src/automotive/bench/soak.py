@@ -179,7 +179,7 @@ def write_chart(path: Path, series: list[Series], warmup_s: float, title: str) -
         base = rss[after][0]
         slope, intercept = fitted
         change.plot(times[after] / 60, rss[after] - base, color=line.get_color(), linewidth=1.2,
-                    label=f"{one.name}: {slope * 3600:+,.0f} kB/h")
+                    label=f"{one.name}: {round(slope * 3600):+,} kB/h")
         change.plot(times[after] / 60, slope * times[after] + intercept - base, "--", color=line.get_color(),
                     linewidth=0.8)
     absolute.axvspan(0, warmup_s / 60, color="grey", alpha=0.12, label="warm-up")
