@@ -17,6 +17,7 @@ import pytest
 from apprunner import AppRunner, CommandProcess
 
 from automotive import config
+from automotive.bus import stats
 from automotive.tools import children
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -71,7 +72,9 @@ def app_line(name: str, pattern: str) -> str:
 
 def test_whole_system_reaches_steady_state_and_ctrl_c_stops_it(apps, domain_id: int,  # type: ignore[no-untyped-def]
                                                                 tmp_path: Path) -> None:
-    launcher = launch(apps, domain_id, tmp_path, *SYSTEM_OVERRIDES)
+    stats_dir = tmp_path / "stats"
+    stats_dir.mkdir()
+    launcher = launch(apps, domain_id, tmp_path, *SYSTEM_OVERRIDES, "--stats-dir", str(stats_dir))
     pids = started_pids(launcher)
     expected = [name for name in APPS if available(name)]
     assert sorted(pids) == sorted(expected)
@@ -94,6 +97,11 @@ def test_whole_system_reaches_steady_state_and_ctrl_c_stops_it(apps, domain_id: 
         assert f"--- {name} stopped on SIGTERM" in log
     assert not (tmp_path / "launch.pid").exists()
     assert "how each application ended" in (tmp_path / "launch-summary.txt").read_text()
+    # --stats-dir: each application's status records in <name>.jsonl (what automotive-bench-soak reads)
+    for name in expected:
+        assert any(True for _ in stats.read(stats_dir / f"{name}.jsonl", "ready")), f"{name}.jsonl has no ready"
+    assert any(record["state"] == "alert" for record in stats.read(stats_dir / "hmi.jsonl", "shown"))
+    assert any(True for _ in stats.read(stats_dir / "camera_sub.jsonl", "window"))
 
 
 def test_an_application_that_dies_is_reported_with_its_exit_code(apps, domain_id: int,  # type: ignore[no-untyped-def]
@@ -144,6 +152,8 @@ def test_subset_with_three_vision_sensors_stopped_by_launch_stop(apps, domain_id
     (["--vision-sensors", "0"], "--vision-sensors 0: expected 1 or more"),
     (["-D", "nokey"], "-D nokey: expected KEY=VALUE"),
     (["-D", "radar:config.x=1"], "-D radar:config.x=1: unknown application 'radar'"),
+    (["--stats-dir", "no/such/folder"], "--stats-dir no/such/folder: no such folder 'no/such/folder'"),
+    (["--stats-dir", "radar:."], "--stats-dir radar:.: unknown application 'radar'"),
 ])
 def test_bad_input_is_one_line_and_exit_code_2(args: list[str], message: str, tmp_path: Path) -> None:
     result = subprocess.run([*LAUNCH, "--log-dir", str(tmp_path), *args],
@@ -163,3 +173,14 @@ def test_stop_without_a_launcher_says_so(tmp_path: Path) -> None:
     result = subprocess.run([*LAUNCH, "stop", "--log-dir", str(tmp_path)], capture_output=True,
                             text=True, timeout=20)
     assert result.returncode == 1 and "no launcher is running" in result.stderr
+
+
+def test_a_child_that_keeps_no_lines_hands_each_to_its_callback() -> None:
+    """The launcher's children (keep=False): every line reaches the callback, none stays in the parent's memory
+    (a system that runs for hours prints millions of lines; issue 20)."""
+    seen: list[str] = []
+    child = children.Child("printer", [sys.executable, "-c", "for n in range(2000): print(f'line {n}')"],
+                           on_line=lambda child, line: seen.append(line.text), keep=False)
+    assert child.wait_exit(timeout=30) == 0
+    assert seen == [f"line {n}" for n in range(2000)]
+    assert child.records == [] and child._new_lines.qsize() <= 1  # at most the end-of-stream mark

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from automotive import config
+from automotive.bus import stats
 from automotive.types.Common import ClassificationEnum
 
 HEADER = "Timestamp,timeStamp," + ",".join(
@@ -140,15 +141,18 @@ def test_stopped_vision_makes_fusion_report_a_deadline_miss(apps, domain_id: int
 
 
 def test_killed_collision_avoidance_loses_liveliness_and_recovers(apps, domain_id: int,  # type: ignore[no-untyped-def]
-                                                                  short_qos: Path) -> None:
+                                                                  short_qos: Path, tmp_path: Path) -> None:
     common = ["--domain", str(domain_id), "-D", f"qos.File={short_qos}"]
-    hmi = apps.start("hmi", "--ui", "console", *common)
+    records = tmp_path / "hmi.jsonl"
+    hmi = apps.start("hmi", "--ui", "console", *common, "--stats", str(records))
     avoidance = apps.start("collision_avoidance", *common)
     hmi.wait_for(r"\[AlertTopic\] liveliness regained")
     avoidance.stop(signal.SIGKILL)
     hmi.wait_for(r"alert source LOST", timeout=20)
     apps.start("collision_avoidance", *common)
     hmi.wait_for(r"alert source back: the alert writer's liveliness was regained", timeout=20)
+    # what the driver was told, as status records (automotive-bench-soak counts the losses)
+    assert [record["alive"] for record in stats.read(records, "source")] == [False, True]
 
 
 def cyclonedds_tool() -> str:

@@ -176,6 +176,7 @@ def body(app: Application) -> None:
                 else:
                     app.log.info("alert source back: the alert writer's liveliness was regained")
                 source_lost = not alive
+                app.stats.record("source", alive=alive)  # what the driver is told: lost, or back
                 ui.source_alive(alive)
             for alert in alerts.take(N=100):
                 if not isinstance(alert, DriverAlerts):

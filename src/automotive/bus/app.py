@@ -47,6 +47,7 @@ from automotive.bus.cli import (
 )
 from automotive.bus.endpoints import Databus
 from automotive.bus.errors import ConfigError
+from automotive.bus.memtrace import start_from_environment as start_memory_probe
 from automotive.bus.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, user_uri
 from automotive.bus.properties import Properties
 from automotive.bus.qos import QosProfiles, profile_name
@@ -270,6 +271,7 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
     """Parse the command line, build the application, run ``body`` and shut down; return the exit code."""
     args = build_parser(name, description, add_arguments).parse_args(argv)
     log = setup_logging(name)
+    start_memory_probe(name)  # a diagnostic, only with AUTOMOTIVE_MEMTRACE set (automotive.bus.memtrace)
     app: Application | None = None
 
     def on_signal(signum: int, frame: FrameType | None) -> None:

@@ -18,7 +18,7 @@ from cyclonedds.qos import DataReaderQos, DataWriterQos, Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
-from automotive.bus import badsamples
+from automotive.bus import badsamples, memtune
 from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.errors import ConfigError
@@ -45,6 +45,7 @@ class Databus:
     def __init__(self, domain_id: int, profiles: QosProfiles, library: str, log: logging.Logger,
                  network: NetworkConfig | None = None, name: str = "automotive", stats: Stats | None = None,
                  reporter: BadSampleReporter | None = None):
+        memtune.settle_malloc()  # before the first receive buffer: resident memory settles (automotive.bus.memtune)
         self.name = name
         self.stats = stats or Stats(None, name)
         self.reporter = reporter  # of bad samples; None: the process's (automotive.bus.badsamples)

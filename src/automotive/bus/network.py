@@ -53,7 +53,15 @@ PEERS_ANNOUNCE_INTERVAL = "1s"
 # of CPU/s per participant, never leaving the host; docs/deployment.md).
 LOOPBACK_ANNOUNCE_INTERVAL = "2s"
 PROBE_FOREVER = "inf"
-LOOPBACK_ANNOUNCE_INTERVAL = "2s"
+# Cyclone's receive thread places every datagram it receives in a receive buffer of this size, one after the other
+# (a bump allocator that never reuses a buffer's space), and starts a new buffer when one is full. Each page of a
+# buffer becomes resident when the first datagram reaches it, so a process's RSS climbs with every byte received
+# until the buffer is full and freed: with Cyclone's default of 1 MiB, an application that receives little (a
+# sensor that only hears the other participants' discovery, about 2 kB/s) climbed for 8-15 minutes, then dropped,
+# then climbed again while glibc placed the next buffers in the thread's arena (docs/memory.md). A quarter of that
+# makes the climb end within the first minutes and bounds it at a few hundred kB; it still holds two of the largest
+# datagrams (64 KiB, the receive chunk of 128 KiB plus one more), so no allocation per datagram is added.
+RECEIVE_BUFFER_SIZE = "256KiB"
 LOCALHOST = "127.0.0.1"
 _HOST_NAME = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?$")
 
@@ -169,7 +177,9 @@ class NetworkConfig:
             internal += (f'<SocketReceiveBufferSize min="default" max="{self.socket_buffer}"/>'
                          f'<SocketSendBufferSize min="default" max="{self.socket_buffer}"/>')
         internal = f"<Internal>{internal}</Internal>" if internal else ""
-        return f"<CycloneDDS><Domain><General>{general}</General>{discovery}{internal}</Domain></CycloneDDS>"
+        sizing = f"<Sizing><ReceiveBufferSize>{RECEIVE_BUFFER_SIZE}</ReceiveBufferSize></Sizing>"
+        return (f"<CycloneDDS><Domain><General>{general}</General>{discovery}{internal}{sizing}</Domain>"
+                f"</CycloneDDS>")
 
     def describe(self) -> str:
         if self.mode == LOOPBACK:

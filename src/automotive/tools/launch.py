@@ -7,6 +7,8 @@
     automotive-launch --redundant                       hot standbys: two sensor_fusion, two collision_avoidance
     automotive-launch --peers 10.0.0.1,10.0.0.2 --interface eth0 vision sensor_fusion
     automotive-launch -D collision_avoidance:config.alertSize=1.0 -D config.domainId=7
+    automotive-launch --stats-dir figures               each application's --stats records in figures/<name>.jsonl
+    automotive-launch --stats-dir hmi:figures           only the HMI's
     automotive-launch stop                              stop the running launcher (from another terminal)
     automotive-launch status                            what the running launcher runs
     automotive-launch --list                            the applications this version has
@@ -175,7 +177,26 @@ def plan(args: argparse.Namespace) -> tuple[list[AppSpec], list[tuple[str, str]]
                                                     *overrides_for(module, name, args.overrides)]))
         else:
             specs.append(AppSpec(module, module, [*common, *overrides_for(module, module, args.overrides), *extra]))
+    for spec in specs:
+        folder = stats_folder(spec.module, spec.name, args.stats_dir)
+        if folder is not None:
+            spec.args += ["--stats", str(folder / f"{spec.name}.jsonl")]
     return specs, missing
+
+
+def stats_folder(module: str, name: str, stats_dirs: Sequence[str]) -> Path | None:
+    """Where one application writes its status records (--stats-dir DIR for all, APP:DIR for that one), or None."""
+    folder: Path | None = None
+    for item in stats_dirs:
+        target, _, path = item.partition(":") if re.match(r"^[\w-]+:", item) else ("", "", item)
+        if target and target not in APPS and not target.startswith(tuple(f"{app}-" for app in APPS)):
+            raise LaunchError(f"--stats-dir {item}: unknown application '{target}'; expected one of: "
+                              f"{', '.join(APPS)}")
+        if not Path(path).is_dir():
+            raise LaunchError(f"--stats-dir {item}: no such folder '{path}'")
+        if not target or target in (module, name):
+            folder = Path(path).resolve()
+    return folder
 
 
 # -- output: the launcher's terminal and the log files --------------------------------------------------------------
@@ -422,6 +443,7 @@ class Supervisor:
                 child = Child(spec.name, spec.command, env=env, separate_stderr=True,
                               new_session=True,  # Ctrl-C reaches the launcher only
                               preexec_fn=set_parent_death_signal, read=False, on_line=self._on_line,
+                              keep=False,  # every line goes to the log file and the console, none stays in memory
                               on_end=lambda child, stream: self.wake.set())  # ending: look at it now
             except OSError as error:
                 self.console.say(f"cannot start {spec.name}: {error}")
@@ -537,7 +559,7 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
                           f"stop it with `{PROG} stop`, or use another --log-dir")
     (log_dir / SUMMARY_FILE).unlink(missing_ok=True)
     names = [spec.name for spec in specs]
-    console = Console(names, show_apps=mode != "window", launcher_log=log_dir / "launch.log")
+    console = Console(names, show_apps=mode != "window" and not args.quiet, launcher_log=log_dir / "launch.log")
     views: Views = Views()
     if mode == "window":
         terminal = find_terminal()
@@ -739,6 +761,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "property override for every application, or for APP only (repeatable)")
     add_log_dir_option(parser, DEFAULT_LOG_DIR, "log files, pid file and summary (default: logs/ in the current "
                                                 "directory)")
+    parser.add_argument("--stats-dir", action="append", default=[], metavar="[APP:]DIR",
+                        help="every application (or APP only) appends its status records (--stats) to "
+                             "DIR/<name>.jsonl (repeatable)")
+    parser.add_argument("--quiet", action="store_true",
+                        help="background mode: only the launcher's own lines on the console (the applications' "
+                             "lines are in their log files)")
     parser.add_argument("--stop-timeout", type=float, default=DEFAULT_STOP_TIMEOUT, metavar="S",
                         help=f"seconds between SIGTERM and SIGKILL when stopping (default {DEFAULT_STOP_TIMEOUT:g})")
     parser.add_argument("--no-setup", action="store_true",

@@ -19,10 +19,8 @@ reports a frame that breaks either (automotive.bus.badsamples) and leaves it out
 
 from __future__ import annotations
 
-import ctypes
 import gc
 import struct
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,7 +30,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy
 from cyclonedds.sub import DataReader
 
-from automotive.bus import badsamples
+from automotive.bus import badsamples, memtune
 from automotive.bus.badsamples import BadSample, BadSampleError
 from automotive.bus.checkedreader import WriterNames, undecodable
 from automotive.bus.errors import ConfigError
@@ -61,9 +59,8 @@ _LITTLE_FIELDS = struct.Struct("<IiII")
 _BIG_FIELDS = struct.Struct(">IiII")
 
 
-# glibc mallopt parameters (malloc.h)
-_M_TRIM_THRESHOLD = -1
-_M_MMAP_THRESHOLD = -3
+# The camera processes' glibc thresholds (automotive.bus.memtune): 4 MiB frames stay in the heap for reuse.
+_MMAP_THRESHOLD_BYTES = 64 * 1024 * 1024
 _KEEP_HEAP_BYTES = 256 * 1024 * 1024
 
 
@@ -77,16 +74,7 @@ def tune_process_for_large_frames() -> None:
     cyclic collector's way, so the collections that the per-sample objects trigger stay short.
     """
     gc.freeze()
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        libc = ctypes.CDLL(None)
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):  # not glibc: nothing to tune
-        return
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    mallopt(_M_MMAP_THRESHOLD, 64 * 1024 * 1024)
-    mallopt(_M_TRIM_THRESHOLD, _KEEP_HEAP_BYTES)
+    memtune.set_malloc_thresholds(_MMAP_THRESHOLD_BYTES, _KEEP_HEAP_BYTES)  # not glibc: nothing to tune
 
 
 class FrameSource(Protocol):

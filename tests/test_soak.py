@@ -1,0 +1,76 @@
+"""automotive-bench-soak's arithmetic and report on made-up samples (the benchmark itself runs the whole system for
+half an hour: not a test)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+import psutil
+import pytest
+
+from automotive.bench import soak
+
+
+def series(name: str, rss_kB: list[int], interval_s: float = 10.0) -> soak.Series:
+    one = soak.Series(name, psutil.Process(os.getpid()))
+    one.times_s = [index * interval_s for index in range(len(rss_kB))]
+    one.rss_kB = rss_kB
+    one.cpu_s = [index * 0.5 for index in range(len(rss_kB))]  # half a second of CPU every 10 s: 5 %
+    return one
+
+
+def write_records(path: Path, *records: dict[str, object]) -> None:
+    path.write_text("".join(json.dumps({"t": 0, "program": path.stem, **record}) + "\n" for record in records))
+
+
+def test_slope_after_the_warm_up_in_kB_per_hour() -> None:
+    # 60 s of warm-up climbing fast, then +1 kB every 10 s: 360 kB/h
+    one = series("vision", [1000, 1100, 1200, 1300, 1400, 1500] + [2000 + n for n in range(30)])
+    slope = one.slope_kB_per_h(60.0)
+    assert slope == pytest.approx(360.0)
+    assert one.cpu_percent() == pytest.approx(5.0)
+    assert series("hmi", [1000, 1000]).slope_kB_per_h(0.0) is None  # too few samples for a line
+
+
+def test_camera_and_hmi_figures_from_their_status_records(tmp_path: Path) -> None:
+    camera, hmi = tmp_path / "camera_sub.jsonl", tmp_path / "hmi.jsonl"
+    write_records(camera, {"kind": "window", "samples": 30, "gaps": 0, "mismatches": 0},
+                  {"kind": "window", "samples": 29, "gaps": 1, "mismatches": 2})
+    write_records(hmi, {"kind": "shown", "state": "alert", "texts": ["x"]},
+                  {"kind": "shown", "state": "clear", "texts": []},
+                  {"kind": "source", "alive": False}, {"kind": "source", "alive": True},
+                  {"kind": "matched", "count": 1})
+    seen = soak.Seen.read(camera, hmi)
+    assert (seen.frames, seen.gaps, seen.mismatches) == (59, 1, 2)
+    assert (seen.alerts, seen.clears, seen.source_lost) == (1, 1, 1)
+    # once camera_sub has written its totals (at the end), they count instead of the windows' sum
+    with camera.open("a") as out:
+        out.write(json.dumps({"kind": "totals", "samples": 60, "gaps": 1, "mismatches": 2}) + "\n")
+    assert soak.Seen.read(camera, hmi).frames == 60
+    assert soak.Seen.read(tmp_path / "none.jsonl", tmp_path / "none.jsonl") == soak.Seen()
+
+
+def test_report_table_chart_and_last_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    args = argparse.Namespace(minutes=6.0, warmup=1.0, chart=tmp_path / "soak.png")
+    flat = [5000] * 37
+    climbing = [5000 + 10 * n for n in range(37)]  # +10 kB every 10 s: 3,600 kB/h
+    everyone = [series("vision", flat), series("camera_sub", climbing), series(soak.LAUNCHER, climbing)]
+    assert soak.report(everyone, soak.Seen(frames=100), args) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[-1] == "rss_slope_kB_per_h_max=3600 app=camera_sub"  # the launcher is outside the goal
+    assert any(line.startswith("goal NOT met: camera_sub: slope 3,600 kB/h > 200") for line in out)
+    assert args.chart.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    assert soak.report([series("vision", flat)], soak.Seen(frames=100), args) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[-2:] == ["goal met", "rss_slope_kB_per_h_max=0 app=vision"]
+
+
+def test_bad_arguments_are_one_line_and_exit_code_2(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as ended:
+        soak.main(["--minutes", "5", "--warmup", "5"])
+    assert ended.value.code == 2
+    assert "--warmup from 0 to below --minutes" in capsys.readouterr().err
