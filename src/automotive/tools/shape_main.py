@@ -81,7 +81,8 @@ REORDER_SAMPLES = 512
 DURABILITY = {"v": "VOLATILE", "l": "TRANSIENT_LOCAL", "t": "TRANSIENT", "p": "PERSISTENT"}
 SCOPES = {"i": "INSTANCE_PRESENTATION_QOS", "t": "TOPIC_PRESENTATION_QOS", "g": "GROUP_PRESENTATION_QOS"}
 
-USAGE = f"""{PROG}: the OMG DDS interoperability suite's shape application on Cyclone DDS
+USAGE = f"""usage: {PROG} (-P | -S) -t TOPIC [options]
+{PROG}: the OMG DDS interoperability suite's shape application on Cyclone DDS
    --help, -h      : print this menu
    -v [e|d]        : set log message verbosity [e: ERROR, d: DEBUG]
    -P              : publish samples
