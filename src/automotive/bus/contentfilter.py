@@ -34,6 +34,7 @@ costs a few attribute reads and comparisons (``automotive-bench-filter`` measure
 from __future__ import annotations
 
 import enum
+import importlib
 import operator
 import re
 import typing
@@ -130,7 +131,20 @@ class MemberType:
     name: str = ""  # as the IDL spells it, for messages
 
 
+def _resolved(hint: Any) -> Any:
+    """A forward reference of the generated code ('automotive.types.Vision.VisionObject', as a sequence's element
+    type) as its class; Cyclone's own resolver does this, the public fallback of member_types does not."""
+    if not isinstance(hint, str) or "." not in hint:
+        return hint
+    module, _, name = hint.rpartition(".")
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError):
+        return hint
+
+
 def _member_type(hint: Any) -> MemberType:
+    hint = _resolved(hint)
     if isinstance(hint, idl_types.typedef):
         return _member_type(hint.subtype)
     if isinstance(hint, (idl_types.sequence, idl_types.array)):
