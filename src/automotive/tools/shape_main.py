@@ -44,7 +44,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from types import FrameType
 from typing import Any, NoReturn
@@ -641,8 +641,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     def on_signal(signum: int, frame: FrameType | None) -> None:
         stop.set()
 
-    previous: dict[int, Callable[..., Any] | int | None] = {
-        sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    # Installed for the rest of the process, never given back: the suite's runner (and the tests) send SIGINT whenever
+    # they are done, also while this command is already ending (a "not supported" exit), and Python's default
+    # handler would then end it by the signal instead of with its exit code.
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, on_signal)
     application: ShapeApplication | None = None
     try:
         application = ShapeApplication(options, console, stop)
@@ -660,8 +663,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if application is not None:
             application.close()
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
     console.line("Done.")
     return 0
 
