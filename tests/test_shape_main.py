@@ -108,3 +108,29 @@ def test_bad_command_lines_end_with_one_line(args: list[str], pattern: str) -> N
     result = subprocess.run([sys.executable, "-m", "automotive.tools.shape_main", *args], capture_output=True,
                             text=True, cwd=ROOT, timeout=60)
     assert_one_line_error(result, rf"^automotive-shape-main: .*{pattern}")
+
+
+def test_sigint_while_ending_keeps_the_exit_code(domain_id: int) -> None:
+    """The suite's runner sends SIGINT when it is done, also while the command is already ending after 'not
+    supported': the exit code stays 2 (it was -2, the signal, once Python had given its handler back)."""
+    import signal
+
+    command = [sys.executable, "-m", "automotive.tools.shape_main", "-S", "-t", "Square", "--coherent",
+               "--access-scope", "i", "-d", str(domain_id)]
+    with subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as process:
+        assert process.stdout is not None
+        printed = ""
+        while "not supported" not in printed:
+            line = process.stdout.readline()
+            assert line, f"ended without 'not supported': {printed}"
+            printed += line
+        for _ in range(30_000):  # SIGINT again and again until it has ended (at most about a minute)
+            if process.poll() is not None:
+                break
+            process.send_signal(signal.SIGINT)
+            try:
+                process.wait(timeout=0.002)
+            except subprocess.TimeoutExpired:
+                pass
+        process.stdout.read()
+    assert process.returncode == 2

@@ -641,9 +641,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     def on_signal(signum: int, frame: FrameType | None) -> None:
         stop.set()
 
-    # Installed for the rest of the process, never given back: the suite's runner (and the tests) send SIGINT whenever
-    # they are done, also while this command is already ending (a "not supported" exit), and Python's default
-    # handler would then end it by the signal instead of with its exit code.
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, on_signal)
     application: ShapeApplication | None = None
@@ -663,8 +660,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if application is not None:
             application.close()
+        ignore_stop_signals()
     console.line("Done.")
     return 0
+
+
+def ignore_stop_signals() -> None:
+    """Once the command's work is done, SIGINT and SIGTERM have nothing left to stop. The suite's runner (and the
+    tests) send SIGINT whenever they are done, also while the command is already ending (a "not supported" exit);
+    Python gives a handler of its own back to the default at interpreter shutdown, and the signal would then end the
+    process by the signal (exit -2) instead of with its exit code. An ignored signal stays ignored."""
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
 
 
 if __name__ == "__main__":
