@@ -1,8 +1,11 @@
-"""An eProsima Fast DDS peer for interoperability tests: the C++ program of tests/fastdds, built here, run as a process.
+"""An eProsima Fast DDS peer for interoperability tests: the C++ programs of tests/fastdds, built here, run as
+processes.
 
-The program is built from its sources on first use in a test session (``make`` in tests/fastdds: fastddsgen
-generates the type code from tests/fastdds/automotive.idl, then g++ compiles it against Debian's Fast DDS 2.9) into
-build/fastdds/, and rebuilt only when a source changed. Its samples come back as JSON lines:
+The programs are built from their sources on first use in a test session (``make`` in tests/fastdds: fastddsgen
+generates the type code from tests/fastdds/automotive.idl and shape.idl, then g++ compiles it against Debian's Fast
+DDS 2.9) into build/fastdds/, and rebuilt only when a source changed: ``fastdds_peer`` (the system's flows) and
+``shape_peer`` (the OMG interoperability suite's shape application: :func:`shape_peer`). Samples of fastdds_peer come
+back as JSON lines:
 
     peer = FastDdsPeer.read(apps, ["VisionTopic", "AlertTopic"], domain_id, count=3)
     samples = peer.wait_samples("VisionTopic", 3)      # dicts, member names as in the IDL
@@ -29,12 +32,14 @@ ROOT = Path(__file__).resolve().parent.parent
 SOURCES = ROOT / "tests" / "fastdds"
 BUILD = ROOT / "build" / "fastdds"
 PROGRAM = BUILD / "fastdds_peer"
+SHAPE_PROGRAM = BUILD / "shape_peer"
 PACKAGES = "libfastrtps-dev libfastcdr-dev fastddsgen g++ make"
 BUILD_TIMEOUT = 600.0  # a build from nothing takes about 10 s on an idle 2-core machine; generous under load
 
 
 def build() -> Path:
-    """Build (or bring up to date) the peer; fail the test with what is missing when Fast DDS is not installed."""
+    """Build (or bring up to date) the peers; fail the test with what is missing when Fast DDS is not installed.
+    Returns the path of fastdds_peer."""
     missing = [tool for tool in ("fastddsgen", "make", "g++") if shutil.which(tool) is None]
     if missing:
         pytest.fail(f"the Fast DDS test peer cannot be built: {', '.join(missing)} not found; "
@@ -49,8 +54,14 @@ def build() -> Path:
                     pytrace=False)
     elapsed = time.monotonic() - started
     if elapsed > 1:
-        print(f"built {PROGRAM.relative_to(ROOT)} in {elapsed:.1f} s")
+        print(f"built the Fast DDS peers in {BUILD.relative_to(ROOT)} in {elapsed:.1f} s")
     return PROGRAM
+
+
+def shape_peer() -> Path:
+    """The Fast DDS shape application (tests/fastdds/shape_peer.cpp), built if needed."""
+    build()
+    return SHAPE_PROGRAM
 
 
 class FastDdsPeer:

@@ -79,7 +79,8 @@ def test_bad_properties(apps, app: str, args: list[str], pattern: str) -> None: 
 CONSOLE_SCRIPTS = ("automotive-launch", "automotive-bench-lidar", "automotive-bench-large-data",
                    "automotive-bench-scale",
                    "automotive-bench-fastpath", "automotive-bench-failover", "automotive-bench-record",
-                   "automotive-bench-discovery", "automotive-bench-zenoh", "automotive-bench-soak")
+                   "automotive-bench-discovery", "automotive-bench-zenoh", "automotive-bench-soak",
+                   "automotive-bench-filter", "automotive-shape-main")
 PRINTED_COMMANDS = [("scripts/launch", "scripts/launch")] + [(f".venv/bin/{name}", name) for name in CONSOLE_SCRIPTS]
 
 

@@ -147,6 +147,16 @@ def test_bounds_without_cyclones_type_resolution(gate_closed: None) -> None:
         bounds._plan.cache_clear()
 
 
+def test_content_filters_without_cyclones_type_resolution(gate_closed: None) -> None:
+    """Members of a sequence's element type (a forward reference in the generated code) resolve from the public
+    annotations too."""
+    from automotive.bus.contentfilter import ContentFilter
+
+    matches = ContentFilter.parse("objects[0].classification = CLASSIFICATION_CAR AND timestamp.s = 3")
+    assert matches.bind(VisionSensor)(vision(1)) is True
+    assert ContentFilter.parse("objects[1].size[0] > 0").bind(VisionSensor)(vision(1)) is False
+
+
 # -- the core flows as processes with the fast paths off -----------------------------------------------------------
 
 def wire_bytes(data_type: type[Any], sample: RawSample) -> bytes:

@@ -14,8 +14,9 @@ and runs its loop::
 Common flags: ``--properties FILE`` (default: the shipped ``properties/<name>.properties`` of
 :mod:`automotive.config`), ``-D key=value`` (repeatable), ``--count N`` (stop after N iterations, 0 = run forever),
 ``--domain``, ``--network``, ``--interface``, ``--peers``, ``--stats FILE`` (status as JSON lines,
-:mod:`automotive.bus.stats`). Ctrl-C and SIGTERM end the loop; the entities are deleted and the exit code is 0. Bad
-input ends with one line on stderr and exit code 2.
+:mod:`automotive.bus.stats`), ``--filter TOPIC=EXPR`` (a content filter on the readers of TOPIC, also
+``config.filter.<TOPIC>`` in the properties: :mod:`automotive.bus.contentfilter`). Ctrl-C and SIGTERM end the loop;
+the entities are deleted and the exit code is 0. Bad input ends with one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ from automotive.bus.cli import (
     add_override_option,
     add_stats_option,
 )
+from automotive.bus.contentfilter import TopicFilters
 from automotive.bus.endpoints import Databus
 from automotive.bus.errors import ConfigError
 from automotive.bus.memtrace import start_from_environment as start_memory_probe
@@ -79,6 +81,9 @@ def build_parser(name: str, description: str, add_arguments: ArgumentAdder | Non
     add_domain_option(parser)
     add_network_options(parser)
     add_stats_option(parser)
+    parser.add_argument("--filter", dest="filters", action="append", default=[], metavar="TOPIC=EXPR",
+                        help="content filter of the readers of TOPIC, e.g. \"Circle=color = 'RED' AND x < 100\" "
+                             "(repeatable; config.filter.<TOPIC> in the properties)")
     if add_arguments is not None:
         add_arguments(parser)
     return parser
@@ -120,6 +125,8 @@ class Application:
                                                                   badsamples.DEFAULT_INTERVAL_S, minimum=0.1))
         if not cyclonelog.install(self.reporter):
             log.info("Cyclone's log sink is not reachable: samples Cyclone drops are logged by Cyclone, one line each")
+        # Content filters of the readers, per topic (config.filter.<Topic>, --filter TOPIC=EXPR).
+        self.filters = TopicFilters(props, getattr(args, "filters", []))
         self.network = self._network_config()
         if self.network is None:
             log.info("network: CYCLONEDDS_URI from the environment")
@@ -166,7 +173,11 @@ class Application:
         return self.bus.writer(self.topic_name(role, default_topic), data_type, profile, hook, strength)
 
     def reader(self, role: str, data_type: type[T], default_topic: str, hook: EventHook | None = None) -> DataReader[T]:
-        return self.bus.reader(self.topic_name(role, default_topic), data_type, self.profile(role), hook)
+        """A reader of ``topic.<role>`` with the profile ``qos.<role>.Profile``, filtered when the topic has a
+        content filter."""
+        topic = self.topic_name(role, default_topic)
+        return self.bus.reader(topic, data_type, self.profile(role), hook,
+                               content_filter=self.filters.predicate(topic, data_type))
 
     # -- run loop ----------------------------------------------------------------------------------------------
     @property
@@ -185,6 +196,8 @@ class Application:
         if unused:
             where = ", ".join(f"'{key}' ({self.props.where(key)})" for key in unused)
             raise ConfigError(f"{self.props.source}: unknown key(s) for {self.name}: {where}")
+        self.filters.check_all_used(self.name, [endpoint.topic.name for endpoint in self.bus.endpoints
+                                                if isinstance(endpoint, DataReader)])
         self._ready = True
         self.stats.record("ready")
         if self.match_report_s > 0:

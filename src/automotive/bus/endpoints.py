@@ -21,6 +21,7 @@ from cyclonedds.topic import Topic
 from automotive.bus import badsamples, memtune
 from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.checkedreader import CheckedReader
+from automotive.bus.contentfilter import FilteredReader, Predicate
 from automotive.bus.errors import ConfigError
 from automotive.bus.network import NetworkConfig, user_uri
 from automotive.bus.qos import QosProfiles
@@ -111,17 +112,22 @@ class Databus:
         return writer
 
     def reader(self, topic_name: str, data_type: type[T], profile: str, hook: EventHook | None = None,
-               overrides: tuple[Any, ...] = ()) -> DataReader[T]:
+               overrides: tuple[Any, ...] = (), content_filter: Predicate | None = None) -> DataReader[T]:
         """A reader with the profile's reader QoS; ``overrides`` are policies that replace the profile's (a
-        recorder keeps every sample: History.KeepAll)."""
+        recorder keeps every sample: History.KeepAll); with ``content_filter``, a reader that returns only the
+        checked samples it accepts (automotive.bus.contentfilter)."""
         qos = self.profiles.reader_qos(self.library, profile)
         if overrides:
             qos = DataReaderQos(*overrides, base=qos)
         topic = self.topic(topic_name, data_type)
         exclusive = Policy.Ownership.Exclusive in qos
-        reader: DataReader[T] = CheckedReader(self.subscriber, topic, qos=qos,
-                                              listener=self._listener(topic_name, hook, exclusive),
-                                              reporter=self.reporter)
+        listener = self._listener(topic_name, hook, exclusive)
+        reader: DataReader[T]
+        if content_filter is None:
+            reader = CheckedReader(self.subscriber, topic, qos=qos, listener=listener, reporter=self.reporter)
+        else:
+            reader = FilteredReader(self.subscriber, topic, qos=qos, listener=listener, reporter=self.reporter,
+                                    content_filter=content_filter)
         self._endpoints.append(reader)
         return reader
 

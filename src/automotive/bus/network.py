@@ -113,6 +113,10 @@ class NetworkConfig:
     # False for Cyclone's C tools of Debian (ddsperf 0.10.2), which stop on the loopback peer's PruneDelay attribute
     # (unknown before 0.11) where the Python runtime's Cyclone 11 needs it to probe for late joiners forever.
     prune_delay: bool = True
+    # Samples kept of a running reliable writer just discovered, until its next heartbeat says where its history
+    # starts (Cyclone's Internal/PrimaryReorderMaxSamples and, per reader that joined it, SecondaryReorderMaxSamples:
+    # 128 by default; the rest is dropped without a trace). 0: Cyclone's defaults.
+    reorder_samples: int = 0
 
     @classmethod
     def from_settings(cls, network: str = "", interface: str = "", peers: list[str] | None = None,
@@ -171,6 +175,9 @@ class NetworkConfig:
 
     def _domain_xml(self, interfaces: str, multicast: bool, discovery: str, internal: str = "") -> str:
         general = f"{interfaces}<AllowMulticast>{'true' if multicast else 'false'}</AllowMulticast>"
+        if self.reorder_samples:
+            internal += (f"<PrimaryReorderMaxSamples>{self.reorder_samples}</PrimaryReorderMaxSamples>"
+                         f"<SecondaryReorderMaxSamples>{self.reorder_samples}</SecondaryReorderMaxSamples>")
         if self.large_data:
             general += (f"<MaxMessageSize>{min(65500, self.fragment_size + 1500)}B</MaxMessageSize>"
                         f"<FragmentSize>{self.fragment_size}B</FragmentSize>")

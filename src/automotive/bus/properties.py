@@ -82,6 +82,10 @@ class Properties:
     def __contains__(self, key: str) -> bool:
         return key in self._values
 
+    def keys(self, prefix: str = "") -> list[str]:
+        """The keys that start with ``prefix``, in the order they were set (not counted as read)."""
+        return [key for key in self._values if key.startswith(prefix)]
+
     def unused_keys(self) -> list[str]:
         return [key for key in self._values if key not in self._read]
 

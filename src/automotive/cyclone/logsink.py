@@ -86,6 +86,20 @@ def sink_setter() -> Any:
     return setter
 
 
+def set_log_mask(mask: int) -> bool:
+    """Let Cyclone log only the categories of ``mask`` (LC_FATAL | LC_ERROR: its warnings off); False when the gate is
+    closed or the library has no dds_set_log_mask (Cyclone logs as before)."""
+    if not gate.enabled():
+        return False
+    try:
+        from cyclonedds.internal import load_cyclonedds
+
+        load_cyclonedds().dds_set_log_mask(ctypes.c_uint32(mask))
+    except (AttributeError, OSError, ImportError):
+        return False
+    return True
+
+
 class _Sink:
     def __init__(self, handler: Handler, setter: Any):
         self.handler = handler

@@ -27,7 +27,8 @@ from automotive.bus.errors import ConfigError
 from automotive.bus.stats import Every
 from automotive.tools.flows import Flow, channel_metadata, select, system_flows
 from automotive.tools.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, SubprotocolRelay
-from automotive.wire.rawsample import RawReader, SampleKind
+from automotive.wire.filteredraw import filtered_raw_reader
+from automotive.wire.rawsample import SampleKind
 
 TAKE_LIMIT = 16
 
@@ -64,8 +65,9 @@ def body(app: Application) -> None:
         raise ConfigError(f"--port {port}: expected 0..65535")
     listener = SubscriptionLog(app)
     # Readers first: the channels appear to clients at once, the data as soon as writers match.
-    readers = [(flow.topic, RawReader(app.bus.reader(flow.topic, flow.data_type, flow.profile,
-                                                     overrides=(Policy.History.KeepLast(1),))),
+    readers = [(flow.topic, filtered_raw_reader(app.bus.reader(flow.topic, flow.data_type, flow.profile,
+                                                               overrides=(Policy.History.KeepLast(1),)),
+                                                app.filters.predicate(flow.topic, flow.data_type)),
                 foxglove_channel(app, flow)) for flow in flows]
     # The SDK's server on a private loopback port, behind a front on --host/--port that also accepts the older
     # subprotocol name (automotive.tools.wsrelay).

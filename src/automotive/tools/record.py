@@ -33,7 +33,8 @@ from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
 from automotive.bus.stats import Every
 from automotive.tools.flows import Flow, channel_metadata, select, system_flows
-from automotive.wire.rawsample import RawReader, RawSample, SampleKind
+from automotive.wire.filteredraw import FilteredRawReader, filtered_raw_reader
+from automotive.wire.rawsample import RawSample, SampleKind
 
 TAKE_LIMIT = 64  # samples per take
 FLUSH_INTERVAL_S = 1.0  # finish the open chunk and hand it to the OS at least this often: what a SIGKILL can cost
@@ -196,8 +197,10 @@ def body(app: Application) -> None:
 
     # Every sample kept until taken (the profile's history could replace an untaken one); the rest of the reader
     # QoS is the profile's, so reliable flows are read reliably and the alert's transient-local state is fetched.
-    readers = [(flow.topic, RawReader(app.bus.reader(flow.topic, flow.data_type, flow.profile, on_event,
-                                                     overrides=(Policy.History.KeepAll,))))
+    # A topic with a content filter (--filter, config.filter.<Topic>) records only the samples it accepts.
+    readers = [(flow.topic, filtered_raw_reader(app.bus.reader(flow.topic, flow.data_type, flow.profile, on_event,
+                                                               overrides=(Policy.History.KeepAll,)),
+                                                app.filters.predicate(flow.topic, flow.data_type)))
                for flow in flows]
     app.log.info("recording %d topic(s) to %s (%s, chunks of %d bytes): %s", len(flows), path, compression,
                  chunk_size, ", ".join(flow.topic for flow in flows))
@@ -227,9 +230,11 @@ def body(app: Application) -> None:
     written = sum(c.bytes for c in recording.counts.values())
     size = recording.file_size()
     app.stats.record("summary", seconds=elapsed, file_bytes=size, **recording.figures())
+    filtered = {topic: raw.filtered_out for topic, raw in readers if isinstance(raw, FilteredRawReader)}
     for topic, counts in recording.counts.items():
-        app.log.info("summary %s: messages=%d changes=%d MB=%.3f lost=%d dds_lost=%d", topic, counts.messages,
-                     counts.changes, counts.bytes / 1e6, counts.lost, counts.dds_lost)
+        app.log.info("summary %s: messages=%d changes=%d MB=%.3f lost=%d dds_lost=%d%s", topic, counts.messages,
+                     counts.changes, counts.bytes / 1e6, counts.lost, counts.dds_lost,
+                     f" filtered_out={filtered[topic]}" if topic in filtered else "")
     app.log.info("summary: %s in %.1f s, file %s of %.2f MB (compression ratio %.2f)", recording.totals(),
                  elapsed, path, size / 1e6, written / size if size else 0.0)
 

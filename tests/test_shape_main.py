@@ -1,0 +1,117 @@
+"""The shape_main-compatible command (automotive.tools.shape_main, automotive-shape-main) through the OMG DDS
+interoperability suite's QoS groups: against itself, and with the Fast DDS shape peer (tests/fastdds/shape_peer.cpp)
+on either side.
+
+Each case (tests/shape_cases.py) runs its publishers and subscribers as processes in a network namespace of its own,
+created and deleted by the test: the suite's cases use DDS domains 0 and 1, which other tests must not see. Needs
+root (ip netns); skipped otherwise. Every application must then stop on SIGINT, as the suite's runner stops them,
+with exit code 0 (2 for an option it says is not supported), and print no traceback.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from apprunner import AppRunner
+from fastdds_peer import shape_peer
+from shape_cases import FASTDDS_PAIRS, OURS_TO_FASTDDS, SELF_CASES, Case, CaseRun, Implementation, describe
+
+from automotive.tools import netlab
+
+ROOT = Path(__file__).resolve().parent.parent
+OURS = Implementation("ours", [sys.executable, "-m", "automotive.tools.shape_main"])
+_names = itertools.count()
+
+
+@pytest.fixture
+def namespace() -> Iterator[str]:
+    """A network namespace with only its own loopback, deleted after the test (and after its processes)."""
+    reason = netlab.unavailable()
+    if reason is not None:
+        pytest.skip(reason)
+    with netlab.Namespace(f"shape-{os.getpid()}-{next(_names)}") as created:
+        yield created.name
+
+
+def run_case(case: Case, namespace: str, publisher: Implementation, subscriber: Implementation,
+             representation: str) -> None:
+    runner = AppRunner(ROOT)
+    run = CaseRun(case, runner, namespace, publisher, subscriber, representation)
+    try:
+        outcomes = run.run()
+    finally:
+        stopped = run.stop()
+        runner.stop_all()
+    expected = list(case.outcome)
+    asserted = [outcome if want is not None else None for outcome, want in zip(outcomes, expected)]
+    assert asserted == expected, describe(run, outcomes)
+    for process, code in stopped:
+        assert code in (0, 2), f"{process.name} ended with exit code {code}:\n{process.output[-3000:]}"
+        assert "Traceback" not in process.output, f"{process.name}:\n{process.output[-3000:]}"
+        if code == 2:
+            assert "not supported" in process.output or "failed to create" in process.output, process.output
+
+
+@pytest.mark.parametrize("case", SELF_CASES, ids=[case.name for case in SELF_CASES])
+def test_against_itself(case: Case, namespace: str) -> None:
+    run_case(case, namespace, OURS, OURS, "2")
+
+
+@pytest.mark.parametrize("case,direction", FASTDDS_PAIRS,
+                         ids=[f"{case.name}-{direction}" for case, direction in FASTDDS_PAIRS])
+def test_with_fastdds(case: Case, direction: str, namespace: str) -> None:
+    fastdds = Implementation("fastdds", [str(shape_peer())])
+    publisher, subscriber = (OURS, fastdds) if direction == OURS_TO_FASTDDS else (fastdds, OURS)
+    run_case(case, namespace, publisher, subscriber, "1")  # Fast DDS 2.9 reads and writes XCDR1 only
+
+
+@pytest.mark.parametrize("args,pattern", [
+    (["-P"], r"please specify topic name \[-t\]"),
+    (["-t", "Square"], r"please specify publish \[-P\] or subscribe \[-S\]"),
+    (["-P", "-S", "-t", "Square"], r"please specify only one of"),
+    (["-P", "-t", "Square", "-D", "x"], r"-D x: expected one of v, l, t, p"),
+    (["-P", "-t", "Square", "-x", "3"], r"-x 3: expected one of 1, 2"),
+    (["-P", "-t", "Square", "-s", "-2"], r"-s -2: expected at least -1"),
+    (["-P", "-t", "Square", "--num-instances", "zero"], r"--num-instances zero: expected an integer"),
+    (["-P", "-t", "Square", "--datafrag-size", "70000"], r"--datafrag-size 70000: expected at most 65535"),
+    (["-S", "-t", "Square", "-c", "RED", "--cft", "x > 1"], r"cannot specify both --cft and -c"),
+    (["-P", "-t", "Square", "--bogus"], r"unrecognized arguments: --bogus"),
+])
+def test_bad_command_lines_end_with_one_line(args: list[str], pattern: str) -> None:
+    from test_bad_input import assert_one_line_error
+
+    result = subprocess.run([sys.executable, "-m", "automotive.tools.shape_main", *args], capture_output=True,
+                            text=True, cwd=ROOT, timeout=60)
+    assert_one_line_error(result, rf"^automotive-shape-main: .*{pattern}")
+
+
+def test_sigint_while_ending_keeps_the_exit_code(domain_id: int) -> None:
+    """The suite's runner sends SIGINT when it is done, also while the command is already ending after 'not
+    supported': the exit code stays 2 (it was -2, the signal, once Python had given its handler back)."""
+    import signal
+
+    command = [sys.executable, "-m", "automotive.tools.shape_main", "-S", "-t", "Square", "--coherent",
+               "--access-scope", "i", "-d", str(domain_id)]
+    with subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as process:
+        assert process.stdout is not None
+        printed = ""
+        while "not supported" not in printed:
+            line = process.stdout.readline()
+            assert line, f"ended without 'not supported': {printed}"
+            printed += line
+        for _ in range(30_000):  # SIGINT again and again until it has ended (at most about a minute)
+            if process.poll() is not None:
+                break
+            process.send_signal(signal.SIGINT)
+            try:
+                process.wait(timeout=0.002)
+            except subprocess.TimeoutExpired:
+                pass
+        process.stdout.read()
+    assert process.returncode == 2
