@@ -591,3 +591,35 @@ def test_generator_refuses_what_it_cannot_mirror() -> None:
         models.model(Mutable)
     with pytest.raises(codecgen.Unsupported):
         models.node(types.sequence(types.sequence(types.int32)))
+
+
+# --- numpy views through the checked reader's rules ------------------------------------------------------------------
+
+@pytest.mark.parametrize("member,index,component", [("size", 3, 1), ("position", 0, 2), ("velocity", 9, 0)])
+def test_views_are_checked_like_dataclasses(member: str, index: int, component: int) -> None:
+    """A NaN in a viewed sequence of structs is the same bad sample, named the same way, as in the dataclasses."""
+    from automotive.bus import validation
+
+    objects = [vision_object(i) for i in range(10)]
+    getattr(objects[index], member)[component] = math.nan
+    data = codec_for(VisionSensor).encode(VisionSensor(id=1, timestamp=POSIXTimestamp(s=1, ns=2), objects=objects))
+    as_dataclasses = validation.check(VisionSensor.deserialize(data))
+    as_views = validation.check(codec_for(VisionSensor).decode(data, views=True))
+    assert as_dataclasses is not None and as_views is not None
+    assert (as_views.member, as_views.expected) == (as_dataclasses.member, as_dataclasses.expected)
+    assert as_views.member == f"objects[{index}].{member}[{component}]"
+    good = codec_for(VisionSensor).encode(VisionSensor(id=1, timestamp=POSIXTimestamp(s=1, ns=2),
+                                                       objects=[vision_object(i) for i in range(10)]))
+    assert validation.check(codec_for(VisionSensor).decode(good, views=True)) is None
+
+
+def test_checked_reader_gives_views(bus: Databus) -> None:
+    writer = bus.writer("VisionTopic", VisionSensor, "Vision")
+    reader = bus.reader("VisionTopic", VisionSensor, "Vision")
+    reader.use_views()  # type: ignore[attr-defined]
+    wait_until(lambda: bool(writer.get_matched_subscriptions()), what="the writer to match")
+    sample = VisionSensor(id=3, timestamp=POSIXTimestamp(s=1, ns=2), objects=[vision_object(i) for i in range(4)])
+    writer.write(sample)
+    taken = take_samples(reader, 1)
+    assert isinstance(taken[0].objects, np.ndarray)
+    assert taken[0].objects["size"][:, 1].tolist() == [2.5 + i for i in range(4)]

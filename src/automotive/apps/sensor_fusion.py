@@ -43,13 +43,21 @@ COPIED = ("classification", "position", "velocity", "size")
 def fuse(samples: list[VisionSensor]) -> np.ndarray[Any, Any]:
     """All objects of the given vision samples (numpy views), in arrival order, at most SENSOR_OBJECT_LIST_MAX_SIZE,
     as sensor objects."""
-    vision_objects = [sample.objects for sample in samples if len(sample.objects)]
+    vision_objects = []
+    count = 0
+    for sample in samples:
+        if count >= SENSOR_OBJECT_LIST_MAX_SIZE:
+            break
+        if len(sample.objects):
+            vision_objects.append(sample.objects)
+            count += len(sample.objects)
+    objects = np.zeros(min(count, SENSOR_OBJECT_LIST_MAX_SIZE), SENSOR_OBJECT)
     if not vision_objects:
-        return np.zeros(0, SENSOR_OBJECT)
-    joined = np.concatenate(vision_objects)[:SENSOR_OBJECT_LIST_MAX_SIZE]
-    objects = np.zeros(len(joined), SENSOR_OBJECT)
+        return objects
+    # Field by field: concatenating plain columns is cheap; concatenating structured arrays promotes their dtypes
+    # element type by element type (a few tens of microseconds per sample).
     for name in COPIED:
-        objects[name] = joined[name]
+        objects[name] = np.concatenate([array[name] for array in vision_objects])[:len(objects)]
     return objects
 
 

@@ -33,7 +33,7 @@ from cyclonedds.sub import DataReader, InvalidSample
 
 from automotive.bus import badsamples, validation
 from automotive.bus.badsamples import BadSample, BadSampleReporter
-from automotive.cyclone import serdata
+from automotive.cyclone import codec_hook, serdata
 from automotive.cyclone.codecs import codec_for
 
 T = TypeVar("T")
@@ -128,7 +128,11 @@ class CheckedReader(DataReader[T]):
         codec = codec_for(self.topic.data_type)
         if codec is None or not codec.view_members:
             raise ValueError(f"{type_name(self.topic.data_type)} has no sequence of fixed-size structs to view")
-        self._views_decoder = lambda data: codec.decode(data, views=True)
+        if codec_hook.installed(self.topic.data_type):
+            self._views_decoder = lambda data: codec.decode(data, views=True)
+        else:  # the codecs are not plugged in (AUTOMOTIVE_CODECS=off): Cyclone's deserializer, then converted
+            deserialize = decoder(self.topic.data_type)
+            self._views_decoder = lambda data: codec.with_views(deserialize(data))
         self._codec = codec
         return self
 

@@ -105,12 +105,18 @@ def _check_floats(values: Any, path: str) -> BadSample | None:
     return None
 
 
+@cache
+def _float_fields(dtype: np.dtype[Any]) -> tuple[str, ...]:
+    return tuple(name for name in dtype.names or () if dtype[name].base.kind == "f")
+
+
 def _check_struct_array(values: np.ndarray[Any, Any], path: str) -> BadSample | None:
     """The float fields of a structured array (numpy views of a sequence of fixed-size structs), all at once."""
-    assert values.dtype.names is not None
-    for name in values.dtype.names:
+    for name in _float_fields(values.dtype):
         column = values[name]
-        if column.dtype.kind != "f":
+        # As _check_floats: one sum for the whole column in the usual case (finite float32 values cannot overflow
+        # a float64 sum); only a non-finite sum makes each element looked at.
+        if math.isfinite(column.sum(dtype=np.float64)):
             continue
         finite = np.isfinite(column)
         if finite.all():
