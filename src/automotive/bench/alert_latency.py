@@ -3,6 +3,7 @@ taking the command, through the real applications in event mode, next to a C cha
 
     automotive-bench-alert-latency                          1 and 50 vision sensors, 2 and 10 objects a sample
     automotive-bench-alert-latency --sensors 1 --objects 2 --window 10 --png latency.png
+    automotive-bench-alert-latency --mode periodic          sensor fusion as the original: a list every 100 ms
 
 For each configuration: hmi (console), vehicle_platform, collision_avoidance, sensor_fusion (config.mode=event) and N
 vision processes (config.sensorId 1..N, 10 Hz each) run on loopback in their own DDS domain, each with ``--stats
@@ -176,7 +177,7 @@ def follow(processes: dict[str, Process], window_start_ns: int, window_end_ns: i
 
 
 def run_one(sensors: int, objects: int, window: float, domain: int, timeout: float,
-            log_dir: Path | None) -> Result:
+            log_dir: Path | None, mode: str = "event") -> Result:
     workdir = Path(tempfile.mkdtemp(prefix=f"{PROG}-"))
     env = dict(os.environ)
     env["CYCLONEDDS_URI"] = NetworkConfig(max_participants=max(100, sensors + 20)).cyclone_xml()
@@ -189,7 +190,7 @@ def run_one(sensors: int, objects: int, window: float, domain: int, timeout: flo
         processes["vehicle_platform"] = Process("vehicle_platform", "vehicle_platform", common, env, workdir)
         processes["collision_avoidance"] = Process("collision_avoidance", "collision_avoidance", common, env,
                                                    workdir)
-        processes["sensor_fusion"] = Process("sensor_fusion", "sensor_fusion", [*common, "-D", "config.mode=event"],
+        processes["sensor_fusion"] = Process("sensor_fusion", "sensor_fusion", [*common, "-D", f"config.mode={mode}"],
                                              env, workdir)
         everyone = list(processes.values())
         wait_until(lambda: all(p.records("ready") for p in everyone), timeout, "the four applications", everyone)
@@ -301,6 +302,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--window", type=float, default=20.0, help="seconds measured per configuration (default 20)")
     parser.add_argument("--c-seconds", type=int, default=5, help="seconds of ddsperf per size (default 5; 0: none)")
     parser.add_argument("--timeout", type=float, default=180.0, help="seconds allowed for start and discovery")
+    parser.add_argument("--mode", choices=["event", "periodic"], default="event",
+                        help="sensor fusion's config.mode (default event)")
     parser.add_argument("--png", type=Path, default=None, help="draw the latency distributions into this PNG")
     add_domain_option(parser, 86, "DDS domain id")
     add_log_dir_option(parser, help="write every process's output and status records there (DIR/sN-oM/)")
@@ -321,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
     for sensors in sensor_counts:
         for objects in object_counts:
             try:
-                result = run_one(sensors, objects, args.window, args.domain, args.timeout, args.log_dir)
+                result = run_one(sensors, objects, args.window, args.domain, args.timeout, args.log_dir, args.mode)
             except (TimeoutError, RuntimeError) as error:
                 print(f"{PROG}: {sensors} sensor(s), {objects} object(s): {error}", file=sys.stderr)
                 return 1
@@ -331,8 +334,8 @@ def main(argv: list[str] | None = None) -> int:
     c_cache: dict[int, tuple[float, float, float] | None] = {}
     ratio = float("nan")
     alert_p99 = float("nan")
-    print(f"sensor-to-alert latency, event mode, loopback, {os.cpu_count()} CPU(s), load average "
-          f"{os.getloadavg()[0]:.1f}; ms")
+    print(f"sensor-to-alert latency, sensor fusion in {args.mode} mode, loopback, {os.cpu_count()} CPU(s), "
+          f"load average {os.getloadavg()[0]:.1f}; ms")
     for result in results:
         print()
         print(f"{result.sensors} vision sensor(s) x 10 Hz, {result.objects} objects a sample, lists of "
