@@ -5,7 +5,8 @@ Data flow:  Vision::VisionSensor on VisionTopic (all sensors)  --\\
             PointCloud2_ on rt/LidarTopic (timestamps logged)  --/
 
 config.mode=periodic (the original) publishes every config.pubInterval ms the objects of the vision samples received
-since the last list; config.mode=event publishes as soon as vision data arrives, for low latency.
+since the last list (taken once a list, not woken by each sample); config.mode=event publishes as soon as vision data
+arrives, for low latency.
 
 The vision objects are read as numpy structured arrays (the generated codecs, automotive.cyclone.codecs) and the list
 is written from one, never one Python object per object. With ``--stats FILE`` every vision sample taken and every
@@ -81,11 +82,22 @@ def body(app: Application) -> None:
     stall_guard = StallGuard(writer, app.log)  # redundant mode: no fusing of samples missed while stalled
     app.log.info("sensor fusion: %s mode, every %.0f ms", mode, interval_s * 1000)
 
-    waitset = app.waitset(vision, lidar)
     pending: list[VisionSensor] = []
     next_publish = time.monotonic() + interval_s
-    for _ in app.wake_ups(waitset, timeout_s=interval_s if mode == "periodic" else 1.0):
+
+    def until_publish() -> float:
+        return next_publish - time.monotonic()
+
+    if mode == "periodic":
+        # Woken by the LiDAR (its stamps are logged) and by the clock, not by each vision sample: the vision data is
+        # taken once a list (the reader keeps 100 samples a sensor), whatever the number of sensors.
+        wake_ups = app.wake_ups(app.waitset(lidar), timeout_s=until_publish)
+    else:
+        wake_ups = app.wake_ups(app.waitset(vision, lidar), timeout_s=1.0)
+    for _ in wake_ups:
         log_lidar_stamps(app, lidar)
+        if mode == "periodic" and time.monotonic() < next_publish:
+            continue
         fresh = stall_guard.fresh([s for s in vision.take(N=1000) if isinstance(s, VisionSensor)],
                                   "vision sample(s)", vision)
         if app.stats.enabled:
