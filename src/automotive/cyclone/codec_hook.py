@@ -33,14 +33,11 @@ import threading
 from importlib import metadata
 from typing import Any
 
-from cyclonedds.core import DDSException, InstanceState, SampleState, ViewState
-from cyclonedds.sub import DataReader, InvalidSample
-
 from automotive.cyclone import gate
 from automotive.cyclone.bounds import BoundError
 from automotive.cyclone.codecs import Codec, CodecError, codec_for, codecs
 
-__all__ = ["TESTED_CYCLONEDDS", "disable", "enable", "enabled", "installed", "take_views", "writable"]
+__all__ = ["TESTED_CYCLONEDDS", "disable", "enable", "enabled", "installed", "writable"]
 
 TESTED_CYCLONEDDS = ("11.0.1",)
 _SERIALIZE_PARAMETERS = ["self", "object", "use_version_2", "buffer", "endianness", "serialize_kind", "prepend_header"]
@@ -156,45 +153,6 @@ def enabled() -> bool:
 def installed(data_type: type) -> bool:
     """True when ``data_type`` is serialized and deserialized by its codec."""
     return data_type in _installed
-
-
-_ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
-
-
-def take_views(reader: DataReader[Any], N: int = 64) -> list[Any]:  # noqa: N803 - Cyclone's name for it
-    """``reader.take(N)``, with the sequences of fixed-size structs of each sample as read-only numpy structured arrays
-    (``codec.element_dtype(member)``) instead of lists of dataclasses: no object is built per element.
-
-    Samples carry ``sample_info`` and state changes are ``InvalidSample``, as ``DataReader.take`` gives them. Without
-    the codecs plugged in (see :func:`enable`) the samples are taken by Cyclone and converted, so the caller always
-    gets arrays.
-    """
-    data_type = reader.topic.data_type
-    codec = codec_for(data_type)
-    if codec is None or not codec.view_members:
-        return reader.take(N=N)
-    if data_type not in _installed:
-        return [sample if isinstance(sample, InvalidSample) else _keep_info(codec.with_views(sample), sample)
-                for sample in reader.take(N=N)]
-    from cyclonedds._clayer import ddspy_take
-
-    taken = ddspy_take(reader._ref, _ANY_STATE, N)
-    if isinstance(taken, int):
-        raise DDSException(taken, f"Occurred while taking data in {reader!r}")
-    samples = []
-    for data, info in taken:
-        if info.valid_data:
-            sample = codec.decode(data, views=True)
-            sample.sample_info = info
-            samples.append(sample)
-        else:
-            samples.append(InvalidSample(data_type.deserialize_key(data), info))
-    return samples
-
-
-def _keep_info(converted: Any, original: Any) -> Any:
-    converted.sample_info = original.sample_info
-    return converted
 
 
 def writable(sample: Any) -> Any:
