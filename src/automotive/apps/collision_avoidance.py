@@ -5,7 +5,9 @@ Data flow:  Sensor::SensorObjectList on SensorObjects  --+-->  Alerts::DriverAle
 
 An object taller than config.alertSize (size[1], metres; 2.0 by default) needs the driver's attention; when none is
 left after an alert, an all-clear alert is written. Every object list is answered with a platform command that follows
-the first object.
+the first object. The objects are read as a numpy structured array (the generated codecs), not one Python object
+each. With ``--stats FILE`` every list taken and every alert and command written is a record linked by DDS source
+timestamps (``take``, ``write``), which automotive.bench.alert_latency follows.
 
 Redundant mode (config.redundant=true): two instances run hot; readers follow the stronger live one. Each instance
 also reads the commands of the owner and numbers its own after them, so that at a failover the vehicle platform's
@@ -17,14 +19,16 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 from cyclonedds.pub import DataWriter
 
 from automotive.bus.app import Application, run
-from automotive.bus.clock import now_timestamp
+from automotive.bus.checkedreader import CheckedReader
+from automotive.bus.clock import now_timestamp, timestamp_of
 from automotive.bus.ownership import OwnerTracker, StallGuard
 from automotive.types.Alerts import DriverAlerts
-from automotive.types.Common import ClassificationEnum, IndicatorStatusEnum
+from automotive.types.Common import IndicatorStatusEnum
 from automotive.types.Platform import PlatformControl, PlatformStatus
 from automotive.types.Sensor import SensorObjectList
 
@@ -37,18 +41,21 @@ ATTENTION = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontC
 
 
 def needs_attention(objects: SensorObjectList, alert_size: float) -> bool:
-    return any(obj.size[1] > alert_size for obj in objects.objects)
+    """``objects.objects`` is a numpy structured array (CheckedReader.use_views)."""
+    return bool((objects.objects["size"][:, 1] > alert_size).any())  # type: ignore[call-overload]
 
 
-def command_for(objects: SensorObjectList, sample_id: int) -> PlatformControl:
-    """A platform command that follows the first object of the list (or a neutral one for an empty list)."""
-    command = PlatformControl(sample_id=sample_id, timestamp=now_timestamp(), vehicleSteerAngle=0.0, speed=0.0,
-                              blinkerStatus=IndicatorStatusEnum.INDICATOR_OFF)
-    if objects.objects:
-        first = objects.objects[0]
-        command.blinkerStatus = IndicatorStatusEnum(ClassificationEnum(first.classification).value % 4)
-        command.speed = first.velocity[0]
-        command.vehicleSteerAngle = first.position[0]
+def command_for(objects: SensorObjectList, sample_id: int, stamp: int | None = None) -> PlatformControl:
+    """A platform command that follows the first object of the list (or a neutral one for an empty list); stamped
+    ``stamp`` (ns since the epoch) or now."""
+    command = PlatformControl(sample_id=sample_id, timestamp=now_timestamp() if stamp is None else timestamp_of(stamp),
+                              vehicleSteerAngle=0.0, speed=0.0, blinkerStatus=IndicatorStatusEnum.INDICATOR_OFF)
+    if len(objects.objects):
+        first: Any = objects.objects[0]
+        # the blinker from the classification's number, as the original
+        command.blinkerStatus = IndicatorStatusEnum(int(first["classification"]) % 4)
+        command.speed = float(first["velocity"][0])
+        command.vehicleSteerAngle = float(first["position"][0])
     return command
 
 
@@ -105,9 +112,13 @@ class Commands:
 def body(app: Application) -> None:
     alert_size = app.props.get_float("config.alertSize", 2.0)
     objects_reader = app.reader("SensorObjects", SensorObjectList, "SensorObjects")
+    if isinstance(objects_reader, CheckedReader):
+        objects_reader.use_views()
     status_reader = app.reader("PlatformStatus", PlatformStatus, "PlatformStatus")
     alert_writer = app.writer("Alerts", DriverAlerts, "AlertTopic")
     control_writer = app.writer("PlatformControl", PlatformControl, "PlatformControl")
+    topics = {"objects": objects_reader.topic.get_name(), "alerts": alert_writer.topic.get_name(),
+              "commands": control_writer.topic.get_name()}
     objects_owner = OwnerTracker(objects_reader, app.log, app.stats)
     commands = Commands(app, control_writer, app.redundant)
     stall_guard = StallGuard(control_writer, app.log)  # redundant mode: no answers to lists missed while stalled
@@ -118,27 +129,36 @@ def body(app: Application) -> None:
         status_count += len(status_reader.take(N=1000))  # read, and otherwise ignored, as in the original
         commands.follow_owner()
         taken = [objects for objects in objects_reader.take(N=100) if isinstance(objects, SensorObjectList)]
+        taken_ns = time.time_ns()
         lists = stall_guard.fresh(taken, "object list(s)", objects_reader)
         if stall_guard.stalled:
             commands.step_down(taken[-1])
         for objects in lists:
             objects_owner.follow(objects)
+            source = objects.sample_info.source_timestamp  # type: ignore[attr-defined]
+            app.stats.record("take", topic=topics["objects"], src=source, at=taken_ns, objects=len(objects.objects))
             if needs_attention(objects, alert_size):
-                alert_writer.write(ATTENTION)
+                stamp = time.time_ns()
+                alert_writer.write(ATTENTION, timestamp=stamp)
+                app.stats.record("write", topic=topics["alerts"], src=stamp, inputs=[source], attention=True)
                 if not alert_active:
                     app.log.info("ALERT: driver attention needed (an object taller than %.1f m)", alert_size)
                     app.stats.record("alert", state="alert")
                 alert_active = True
             elif alert_active:
-                alert_writer.write(ALL_CLEAR)
+                stamp = time.time_ns()
+                alert_writer.write(ALL_CLEAR, timestamp=stamp)
+                app.stats.record("write", topic=topics["alerts"], src=stamp, inputs=[source], attention=False)
                 app.log.info("all clear: no object taller than %.1f m", alert_size)
                 app.stats.record("alert", state="clear")
                 alert_active = False
             sample_id = commands.next_id()
             if sample_id is None:
                 continue
-            command = command_for(objects, sample_id)
-            control_writer.write(command)
+            stamp = time.time_ns()
+            command = command_for(objects, sample_id, stamp)
+            control_writer.write(command, timestamp=stamp)
+            app.stats.record("write", topic=topics["commands"], src=stamp, inputs=[source], sample_id=sample_id)
             app.log.info("command %d: speed %.2f, steer %.2f, blinker %s (%d objects, %d status samples read)",
                          sample_id, command.speed, command.vehicleSteerAngle, command.blinkerStatus.name,
                          len(objects.objects), status_count)

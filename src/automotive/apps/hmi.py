@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 from typing import Any, Protocol
 
 from automotive.bus.app import Application, run
@@ -158,6 +159,7 @@ def body(app: Application) -> None:
             source_alive.append(status.alive_count > 0)
 
     alerts = app.reader("Alerts", DriverAlerts, "AlertTopic", hook=on_status)
+    topic = alerts.topic.get_name()
     owner = OwnerTracker(alerts, app.log, app.stats)
     ui = make_ui(app.args.ui)
     app.log.info("HMI: %s alert box, waiting for alerts", "window" if isinstance(ui, WindowUI) else "console")
@@ -178,9 +180,13 @@ def body(app: Application) -> None:
                 source_lost = not alive
                 app.stats.record("source", alive=alive)  # what the driver is told: lost, or back
                 ui.source_alive(alive)
-            for alert in alerts.take(N=100):
+            taken = alerts.take(N=100)
+            taken_ns = time.time_ns()
+            for alert in taken:
                 if not isinstance(alert, DriverAlerts):
                     continue
+                app.stats.record("take", topic=topic, src=alert.sample_info.source_timestamp,  # type: ignore[attr-defined]
+                                 at=taken_ns, attention=alert.driverAttention)
                 owner.follow(alert)
                 texts = alert_texts(alert)
                 if texts != shown:  # the writer repeats an active alert; the driver sees each change once

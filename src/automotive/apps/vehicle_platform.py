@@ -4,7 +4,8 @@ Data flow:  Platform::PlatformControl on PlatformControl  --+-->  Platform::Plat
             dataFile (CSV)  -----------------------------------/
 
 The status copies blinker and steering angle from the last command; speed, velocity, yaw rate and gas pedal come from
-the rows of the CSV file, wrapping around.
+the rows of the CSV file, wrapping around. Commands are taken as they arrive (with ``--stats FILE``, each one a
+``take`` record with its DDS source timestamp); the status goes out every config.pubInterval ms.
 
 Redundant mode (config.redundant=true): the commands come from the stronger live of two collision_avoidance instances;
 each change of owner is reported, and a command numbered at or below one already executed (stale) is ignored, until
@@ -14,6 +15,7 @@ no command writer is alive any more: an instance that starts after that numbers 
 from __future__ import annotations
 
 import sys
+import time
 from typing import Any
 
 from automotive.bus.app import Application, run
@@ -42,15 +44,27 @@ def body(app: Application) -> None:
 
     steer_angle = 0.0
     blinker = IndicatorStatusEnum.INDICATOR_OFF
-    for iteration, row in zip(app.periodic(interval_s), cycle_rows(rows)):
+    topic = control_reader.topic.get_name()
+    row_cycle = cycle_rows(rows)
+    next_status = time.monotonic()  # the first status at once, then every interval
+
+    def until_status() -> float:
+        return next_status - time.monotonic()
+
+    # Woken by each command (executed at once) and by the status period.
+    for _ in app.wake_ups(app.waitset(control_reader), timeout_s=until_status):
         while writers_lost:
             writers_lost.pop()
             if owner.enabled and executed is not None:
                 app.log.warning("no command writer alive: the next one's numbering is accepted from where it starts")
                 executed = None
-        for command in control_reader.take(N=1000):
+        taken = control_reader.take(N=1000)
+        taken_ns = time.time_ns()
+        for command in taken:
             if not isinstance(command, PlatformControl):
                 continue
+            app.stats.record("take", topic=topic, src=command.sample_info.source_timestamp,  # type: ignore[attr-defined]
+                             at=taken_ns, sample_id=command.sample_id)
             owner.follow(command)
             if owner.enabled and executed is not None and command.sample_id <= executed:
                 app.log.warning("stale command %d from %s ignored: command %d was executed already",
@@ -64,6 +78,12 @@ def body(app: Application) -> None:
                          IndicatorStatusEnum(command.blinkerStatus).name)
             steer_angle = command.vehicleSteerAngle
             blinker = IndicatorStatusEnum(command.blinkerStatus)
+        now = time.monotonic()
+        if now < next_status:
+            continue
+        next_status = max(next_status + interval_s, now)  # after a slow step the schedule restarts, no burst
+        row = next(row_cycle)
+        iteration = app.tick()
         status_writer.write(PlatformStatus(
             timestamp=now_timestamp(), vehSpd=row.vehSpd, blinkerStatus=blinker, posGasPedal=row.posGasPedal,
             velocity=row.velocity, yawRate=row.yawRate, vehicleSteerAngle=steer_angle))

@@ -1,14 +1,18 @@
 """Vision sensor: publishes the objects it sees, one row of its CSV file every interval.
 
 Data flow:  dataFile (CSV)  -->  Vision::VisionSensor on VisionTopic (keyed by config.sensorId)
+
+With ``--stats FILE`` each sample is a ``sample`` record with its DDS source timestamp (``src``, ns since the epoch),
+where automotive.bench.alert_latency starts following it.
 """
 
 from __future__ import annotations
 
 import sys
+import time
 
 from automotive.bus.app import Application, run
-from automotive.bus.clock import now_timestamp
+from automotive.bus.clock import timestamp_of
 from automotive.sim.csvdata import cycle_rows, load_vision_rows
 from automotive.types.Vision import VisionSensor
 
@@ -21,9 +25,10 @@ def body(app: Application) -> None:
     app.log.info("vision sensor %d: %d rows, publishing every %.0f ms", sensor_id, len(rows), interval_s * 1000)
 
     for iteration, objects in zip(app.periodic(interval_s), cycle_rows(rows)):
-        writer.write(VisionSensor(id=sensor_id, timestamp=now_timestamp(), objects=objects))
+        stamp = time.time_ns()  # the data's timestamp is the DDS source timestamp: the latency records link them
+        writer.write(VisionSensor(id=sensor_id, timestamp=timestamp_of(stamp), objects=objects), timestamp=stamp)
         app.log.info("published sample %d: %d object(s)", iteration, len(objects))
-        app.stats.record("sample", number=iteration, objects=len(objects))
+        app.stats.record("sample", number=iteration, objects=len(objects), src=stamp)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -241,14 +241,16 @@ class Application:
         waitset.attach(self.guard)
         return waitset
 
-    def wake_ups(self, waitset: WaitSet, timeout_s: float = 1.0) -> Iterator[None]:
-        """Yield after each wake-up of ``waitset`` (data or timeout) until stopped.
+    def wake_ups(self, waitset: WaitSet, timeout_s: float | Callable[[], float] = 1.0) -> Iterator[None]:
+        """Yield after each wake-up of ``waitset`` (data or timeout) until stopped; ``timeout_s`` may be a function
+        giving the time to wait before each wait (a periodic deadline).
 
         The application calls :meth:`tick` for each unit of its work, which ends the loop after ``--count`` of them.
         """
         self.ready()
         while self.running:
-            waitset.wait(int(timeout_s * 1e9))
+            wait_s = timeout_s() if callable(timeout_s) else timeout_s
+            waitset.wait(max(int(wait_s * 1e9), 0))
             if self.running:
                 yield None
 

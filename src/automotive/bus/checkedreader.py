@@ -14,6 +14,10 @@ serialized samples instead and, for each one:
 
 Applications keep calling ``reader.take(N=...)`` and filtering ``isinstance(sample, Type)``; a take never raises for
 what a remote writer sent.
+
+:meth:`CheckedReader.use_views` makes one reader decode its sequences of fixed-size structs (the vision objects, the
+fused object list) as read-only numpy structured arrays with the generated codec (automotive.cyclone.codecs), without
+one Python object per element; their float fields are checked in bulk (automotive.bus.validation).
 """
 
 from __future__ import annotations
@@ -29,7 +33,8 @@ from cyclonedds.sub import DataReader, InvalidSample
 
 from automotive.bus import badsamples, validation
 from automotive.bus.badsamples import BadSample, BadSampleReporter
-from automotive.cyclone import serdata
+from automotive.cyclone import codec_hook, serdata
+from automotive.cyclone.codecs import codec_for
 
 T = TypeVar("T")
 Decoder = Callable[[bytes], Any]
@@ -114,7 +119,22 @@ class CheckedReader(DataReader[T]):
     def __init__(self, *args: Any, reporter: BadSampleReporter | None = None, **kwargs: Any):
         self.reporter = reporter  # None: the process's reporter
         self._writer_names = WriterNames(self)
+        self._views_decoder: Decoder | None = None  # use_views()
         super().__init__(*args, **kwargs)
+
+    def use_views(self) -> CheckedReader[T]:
+        """Give this reader's samples with their sequences of fixed-size structs as read-only numpy structured
+        arrays (``codec.element_dtype(member)``); the type must have a generated codec with such members."""
+        codec = codec_for(self.topic.data_type)
+        if codec is None or not codec.view_members:
+            raise ValueError(f"{type_name(self.topic.data_type)} has no sequence of fixed-size structs to view")
+        if codec_hook.installed(self.topic.data_type):
+            self._views_decoder = lambda data: codec.decode(data, views=True)
+        else:  # the codecs are not plugged in (AUTOMOTIVE_CODECS=off): Cyclone's deserializer, then converted
+            deserialize = decoder(self.topic.data_type)
+            self._views_decoder = lambda data: codec.with_views(deserialize(data))
+        self._codec = codec
+        return self
 
     def take(self, N: int = 1, condition: Any = None, instance_handle: int | None = None) -> list[Any]:
         fetched = serdata.fetch(self, True, N, condition, instance_handle)
@@ -150,6 +170,10 @@ class CheckedReader(DataReader[T]):
             if isinstance(sample, InvalidSample):
                 samples.append(sample)
                 continue
+            if self._views_decoder is not None:  # the gate is closed: views made from Cyclone's dataclasses
+                info = sample.sample_info
+                sample = self._codec.with_views(sample)
+                sample.sample_info = info
             problem = validation.check(sample)  # type: ignore[assignment]
             if problem is None:
                 samples.append(sample)
@@ -161,7 +185,7 @@ class CheckedReader(DataReader[T]):
 
     def _checked(self, fetched: list[tuple[bytes, Any]]) -> list[Any]:
         data_type = self.topic.data_type
-        decode = decoder(data_type)
+        decode = self._views_decoder or decoder(data_type)
         samples: list[Any] = []
         for data, info in fetched:
             if not info.valid_data:

@@ -18,5 +18,11 @@ def now_timestamp() -> POSIXTimestamp:
     return POSIXTimestamp(s=seconds, ns=nanoseconds)
 
 
+def timestamp_of(epoch_ns: int) -> POSIXTimestamp:
+    """A time in ns since the epoch (a DDS source timestamp) as a POSIXTimestamp."""
+    seconds, nanoseconds = divmod(epoch_ns, 1_000_000_000)
+    return POSIXTimestamp(s=seconds, ns=nanoseconds)
+
+
 def format_timestamp(stamp: POSIXTimestamp) -> str:
     return f"{stamp.s}.{stamp.ns:09d}"

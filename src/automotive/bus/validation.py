@@ -16,6 +16,9 @@ drops it and logs a warning, which automotive.bus.cyclonelog rate-limits. Bounds
 (automotive.bus.bounds.EXTRA_BOUNDS, e.g. the 368,640-byte cloud of RTI's IDL) are not applied to what we read: ROS 2's
 PointCloud2 is unbounded and larger clouds of other publishers are valid.
 
+A sequence of fixed-size structs decoded as a numpy structured array (automotive.bus.checkedreader's views) has its
+float fields checked in bulk; its elements' types have no timestamp or semantic rule.
+
 Semantic rules, one function per type in the module that knows the data (:data:`SEMANTIC_CHECKS`): a PointCloud2's
 geometry and a Shapes Demo circle's size and position (automotive.bus.samplerules). Camera frames
 are decoded by their own codec, which checks their length and header (automotive.wire.camera).
@@ -31,6 +34,7 @@ from collections.abc import Callable
 from functools import cache
 from typing import Any
 
+import numpy as np
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, sequence, typedef
 
@@ -101,8 +105,32 @@ def _check_floats(values: Any, path: str) -> BadSample | None:
     return None
 
 
+@cache
+def _float_fields(dtype: np.dtype[Any]) -> tuple[str, ...]:
+    return tuple(name for name in dtype.names or () if dtype[name].base.kind == "f")
+
+
+def _check_struct_array(values: np.ndarray[Any, Any], path: str) -> BadSample | None:
+    """The float fields of a structured array (numpy views of a sequence of fixed-size structs), all at once."""
+    for name in _float_fields(values.dtype):
+        column = values[name]
+        # As _check_floats: one sum for the whole column in the usual case (finite float32 values cannot overflow
+        # a float64 sum); only a non-finite sum makes each element looked at.
+        if math.isfinite(column.sum(dtype=np.float64)):
+            continue
+        finite = np.isfinite(column)
+        if finite.all():
+            continue
+        bad = np.argwhere(~finite)[0]
+        index, rest = int(bad[0]), "".join(f"[{int(i)}]" for i in bad[1:])
+        return BadSample(f"{path}[{index}].{name}{rest}", repr(float(column[tuple(bad)])), FINITE)
+    return None
+
+
 def _elements(element: Checker) -> Checker:
     def check(values: Any, path: str) -> BadSample | None:
+        if isinstance(values, np.ndarray) and values.dtype.names is not None:
+            return _check_struct_array(values, path)
         for index, value in enumerate(values):
             problem = element(value, f"{path}[{index}]")
             if problem is not None:

@@ -4,6 +4,8 @@
 - :mod:`.serdata`: serialized samples taken from a reader and written to a writer without (de)serializing them, and
   Cyclone's received buffers lent without a copy (``cyclonedds._clayer``, ctypes prototypes of libddsc);
 - :mod:`.bounds`: IDL bounds checked before a write, with a clear message (Cyclone's type-hint resolution);
+- :mod:`.codec_hook`: the generated fast codecs (:mod:`.codecs`, ``automotive/types/codecs.py``) as the serializer
+  of every type they cover (Cyclone's ``IDL.serialize``/``deserialize`` replaced per type);
 - :mod:`.liveliness`: a writer's liveliness asserted without writing (``dds_assert_liveliness``, ctypes).
 
 Each has a fallback on Cyclone's public API, used when the gate is closed (another cyclonedds version, a missing
@@ -27,7 +29,8 @@ def start(log: logging.Logger | None = None) -> bool:
     """
     if not enabled(log):
         return False
-    from automotive.cyclone import fastpath
+    from automotive.cyclone import codec_hook, fastpath
 
     fastpath.enable()
+    codec_hook.enable(log)  # the generated codecs; one warning line and Cyclone's serializer if they cannot be used
     return True

@@ -1,0 +1,382 @@
+"""Sensor-to-alert latency, end to end: from a vision sample to the HMI taking the alert and to the vehicle platform
+taking the command, through the real applications in event mode, next to a C chain of the same hops (ddsperf).
+
+    automotive-bench-alert-latency                          1 and 50 vision sensors, 2 and 10 objects a sample
+    automotive-bench-alert-latency --sensors 1 --objects 2 --window 10 --png latency.png
+    automotive-bench-alert-latency --mode periodic          sensor fusion as the original: a list every 100 ms
+
+For each configuration: hmi (console), vehicle_platform, collision_avoidance, sensor_fusion (config.mode=event) and N
+vision processes (config.sensorId 1..N, 10 Hz each) run on loopback in their own DDS domain, each with ``--stats
+FILE``. The vision data is a CSV file written here: every other row holds an object 2.5 m tall (collision avoidance
+alerts above 2.0 m), so which vision samples carry the tall object is known from their numbers. Every application
+writes with an explicit DDS source timestamp and records what it took (``take``: the source timestamp and when it was
+taken) and wrote (``write``/``list``: the source timestamp written and those of its inputs), so each tall vision
+sample is followed, by source timestamps, through its object list and the alert and command made from it, to the
+HMI's and the vehicle platform's takes. All clocks are this host's wall clock.
+
+Hops (milliseconds; p50, p99, max over the window):
+  vision -> fusion      vision sample's source timestamp -> its object list written (transport + fusion's work)
+  fusion -> collision   list written -> the alert written (transport + collision avoidance's work)
+  collision -> hmi      alert written -> HMI took it
+  alert total           vision sample -> HMI took the alert
+  command total         vision sample -> vehicle_platform took the command (the command hop: command written ->
+                        taken)
+The C chain: ``ddsperf ping``/``pong`` (Cyclone's C tool, loopback, 100 Hz) round trip / 2 at each hop's serialized
+size (vision sample, object list, alert); its p99s added up. ``chain_vs_c`` = alert total p99 / the C chain's p99;
+``x p50`` and ``x p99`` compare each hop with its C counterpart.
+
+Goals (issue 17, on a quiet machine): whole chain p99 <= 2 ms with small lists and <= 3 ms with full ones; no hop above
+10x its C counterpart. Vision samples hold at most 10 objects (Vision::VisionSensor's bound); sensor fusion in event
+mode lists the objects of the samples taken at once, so lists stay small unless it falls behind (the mean list size is
+printed). The last line is ``alert_p99_ms=<x> chain_vs_c=<ratio>`` (of the last configuration run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from automotive import config
+from automotive.bus import stats
+from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.network import NetworkConfig
+from automotive.cyclone.codecs import codec_for
+from automotive.tools.children import Child, program_command, stop_all
+from automotive.types.Alerts import DriverAlerts
+from automotive.types.Common import ClassificationEnum, IndicatorStatusEnum, POSIXTimestamp
+from automotive.types.Platform import PlatformControl
+from automotive.types.Sensor import RangeModeEnum, SensorObject, SensorObjectList
+from automotive.types.Vision import VISION_OBJECT_LIST_MAX_SIZE, VisionObject, VisionSensor
+
+PROG = "automotive-bench-alert-latency"
+TALL_M, SMALL_M = 2.5, 1.5  # object heights; collision avoidance's config.alertSize is 2.0 m
+ROWS = 20  # rows of the vision CSV; the even ones (vision samples 1, 3, 5...) hold the tall object
+HOPS = ("vision -> fusion", "fusion -> collision", "collision -> hmi", "alert total", "command hop", "command total")
+C_HOPS = {"vision -> fusion": "vision", "fusion -> collision": "list", "collision -> hmi": "alert",
+          "command hop": "command"}
+# ddsperf's lines: "... size 300 mean 157.210us min 47.028us 50% 77.071us 90% 214.794us 99% 1872.328us max ..."
+DDSPERF_LINE = re.compile(r"size (\d+) mean [\d.]+us min [\d.]+us 50% ([\d.]+)us 90% [\d.]+us 99% ([\d.]+)us "
+                          r"max ([\d.]+)us cnt (\d+)")
+# ddsperf 0.10 (Debian's) does not know every element of our NetworkConfig's XML: a plain loopback configuration.
+DDSPERF_URI = ('<General><Interfaces><NetworkInterface name="lo"/></Interfaces><AllowMulticast>false</AllowMulticast>'
+               '</General><Discovery><ParticipantIndex>auto</ParticipantIndex><Peers><Peer address="127.0.0.1"/>'
+               '</Peers></Discovery>')
+
+
+def vision_csv(path: Path, objects: int) -> None:
+    """ROWS rows of ``objects`` objects; in the even rows object 0 is TALL_M tall, otherwise every one SMALL_M."""
+    header = (config.properties_dir() / "data" / "vision.csv").read_text(encoding="utf-8").splitlines()[0]
+    lines = [header]
+    for row in range(ROWS):
+        cells = ["Mon Nov 23 00:00:00 2026", "0"]
+        for i in range(VISION_OBJECT_LIST_MAX_SIZE):
+            if i < objects:
+                height = TALL_M if row % 2 == 0 and i == 0 else SMALL_M
+                cells += [str(i), "3", f"{10 + i}", "-1.5", "0.5", "-2", "0", "0", "0.5", str(height), "1"]
+            else:
+                cells += ["0"] * 11
+        cells.append(str(objects))
+        lines.append(",".join(cells))
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+
+
+def tall(sample_number: int) -> bool:
+    return (sample_number - 1) % ROWS % 2 == 0
+
+
+class Process:
+    """A program of the system with its status records (--stats) in ``workdir``."""
+
+    def __init__(self, name: str, program: str, args: list[str], env: dict[str, str], workdir: Path):
+        self.name = name
+        self.stats = workdir / f"{name}.jsonl"
+        self.child = Child(name, program_command(program, *args, "--stats", str(self.stats)), env=env)
+
+    def records(self, kind: str) -> list[dict[str, Any]]:
+        return list(stats.read(self.stats, kind))
+
+    def check_alive(self) -> None:
+        if self.child.poll() is not None:
+            raise RuntimeError(f"{self.name} ended: {' | '.join(self.child.lines[-3:])}")
+
+
+def wait_until(condition: Callable[[], bool], timeout: float, what: str, processes: list[Process]) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        for process in processes:
+            process.check_alive()
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(0.1)  # polling files the other processes append to
+
+
+@dataclass
+class Result:
+    sensors: int
+    objects: int
+    hops: dict[str, list[float]] = field(default_factory=dict)  # ms
+    tall_samples: int = 0
+    lost: int = 0  # tall samples whose alert the HMI did not take (superseded in its keep-last history, or late)
+    list_objects: float = 0.0
+    sizes: dict[str, int] = field(default_factory=dict)  # serialized bytes per hop's sample
+
+
+def follow(processes: dict[str, Process], window_start_ns: int, window_end_ns: int) -> tuple[dict[str, list[float]],
+                                                                                          int, int, float]:
+    """The hops of every tall vision sample written in the window, by source timestamps."""
+    fusion_lists: dict[int, int] = {}
+    list_sizes: list[int] = []
+    for record in processes["sensor_fusion"].records("list"):
+        list_sizes.append(int(record["objects"]))
+        for source in record.get("inputs", []):
+            fusion_lists[int(source)] = int(record["src"])
+    alerts: dict[int, int] = {}
+    commands: dict[int, int] = {}
+    for record in processes["collision_avoidance"].records("write"):
+        target = alerts if "attention" in record else commands
+        if record.get("attention", True):
+            target[int(record["inputs"][0])] = int(record["src"])
+    hmi_takes = {int(r["src"]): int(r["at"]) for r in processes["hmi"].records("take")}
+    platform_takes = {int(r["src"]): int(r["at"]) for r in processes["vehicle_platform"].records("take")}
+    hops: dict[str, list[float]] = {hop: [] for hop in HOPS}
+    tall_samples = lost = 0
+    for name, process in processes.items():
+        if not name.startswith("vision-"):
+            continue
+        for record in process.records("sample"):
+            source = int(record["src"])
+            if not (window_start_ns <= source < window_end_ns) or not tall(int(record["number"])):
+                continue
+            tall_samples += 1
+            listed = fusion_lists.get(source)
+            alert = alerts.get(listed) if listed is not None else None
+            taken = hmi_takes.get(alert) if alert is not None else None
+            if listed is None or alert is None or taken is None:
+                lost += 1
+                continue
+            hops["vision -> fusion"].append((listed - source) / 1e6)
+            hops["fusion -> collision"].append((alert - listed) / 1e6)
+            hops["collision -> hmi"].append((taken - alert) / 1e6)
+            hops["alert total"].append((taken - source) / 1e6)
+            command = commands.get(listed)
+            if command is not None and command in platform_takes:
+                hops["command hop"].append((platform_takes[command] - command) / 1e6)
+                hops["command total"].append((platform_takes[command] - source) / 1e6)
+    return hops, tall_samples, lost, statistics.mean(list_sizes) if list_sizes else 0.0
+
+
+def run_one(sensors: int, objects: int, window: float, domain: int, timeout: float,
+            log_dir: Path | None, mode: str = "event") -> Result:
+    workdir = Path(tempfile.mkdtemp(prefix=f"{PROG}-"))
+    env = dict(os.environ)
+    env["CYCLONEDDS_URI"] = NetworkConfig(max_participants=max(100, sensors + 20)).cyclone_xml()
+    csv = workdir / "vision.csv"
+    vision_csv(csv, objects)
+    common = ["--domain", str(domain), "-D", "config.matchReport=0"]
+    processes: dict[str, Process] = {}
+    try:
+        processes["hmi"] = Process("hmi", "hmi", [*common, "--ui", "console"], env, workdir)
+        processes["vehicle_platform"] = Process("vehicle_platform", "vehicle_platform", common, env, workdir)
+        processes["collision_avoidance"] = Process("collision_avoidance", "collision_avoidance", common, env,
+                                                   workdir)
+        processes["sensor_fusion"] = Process("sensor_fusion", "sensor_fusion", [*common, "-D", f"config.mode={mode}"],
+                                             env, workdir)
+        everyone = list(processes.values())
+        wait_until(lambda: all(p.records("ready") for p in everyone), timeout, "the four applications", everyone)
+        for i in range(1, sensors + 1):
+            processes[f"vision-{i}"] = Process(f"vision-{i}", "vision",
+                                               [*common, "-D", f"config.sensorId={i}", "-D", f"dataFile={csv}"],
+                                               env, workdir)
+        everyone = list(processes.values())
+        wait_until(lambda: any(r["topic"] == "VisionTopic" and r["endpoint"] == "reader" and r["count"] >= sensors
+                               for r in processes["sensor_fusion"].records("matched")),
+                   timeout, f"sensor fusion matching {sensors} vision writer(s)", everyone)
+        wait_until(lambda: bool(processes["hmi"].records("take")) and bool(
+            processes["vehicle_platform"].records("take")), timeout, "the first alert and command", everyone)
+        start_ns = time.time_ns() + 1_000_000_000  # a second for the start-up to settle
+        end_ns = start_ns + int(window * 1e9)
+        print(f"{PROG}: {sensors} sensor(s), {objects} object(s): measuring {window:g} s ...", file=sys.stderr,
+              flush=True)
+        time.sleep((end_ns - time.time_ns()) / 1e9 + 0.5)  # the window runs; then its last records reach the files
+        for process in everyone:
+            process.check_alive()
+        hops, tall_samples, lost, list_objects = follow(processes, start_ns, end_ns)
+        return Result(sensors, objects, hops, tall_samples, lost, list_objects)
+    finally:
+        stop_all([process.child for process in processes.values()], timeout=15)
+        if log_dir is not None:
+            target = log_dir / f"s{sensors}-o{objects}"
+            target.mkdir(parents=True, exist_ok=True)
+            for process in processes.values():
+                (target / f"{process.name}.log").write_text(process.child.output)
+                if process.stats.is_file():
+                    shutil.copyfile(process.stats, target / f"{process.name}.jsonl")
+        shutil.rmtree(workdir, ignore_errors=True)
+
+
+def serialized_sizes(objects: int, list_objects: int) -> dict[str, int]:
+    """Bytes on the wire (XCDR2, as the writers write) of each hop's sample."""
+    stamp = POSIXTimestamp(s=1, ns=2)
+    vision = VisionSensor(id=1, timestamp=stamp, objects=[
+        VisionObject(classification=ClassificationEnum(3), position=[0.0] * 3, velocity=[0.0] * 3, size=[0.0] * 3)
+        for _ in range(objects)])
+    object_list = SensorObjectList(timestamp=stamp, objects=[
+        SensorObject(classification=ClassificationEnum(3), position=[0.0] * 3, velocity=[0.0] * 3, size=[0.0] * 3,
+                     amplitude=0.0, rangeMode=RangeModeEnum.RANGE_NONE, rangeRate=0.0)
+        for _ in range(list_objects)])
+    alert = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False,
+                         backCollision=False, parkingCollision=False, driverAttention=True)
+    command = PlatformControl(sample_id=1, timestamp=stamp, vehicleSteerAngle=0.0, speed=0.0,
+                              blinkerStatus=IndicatorStatusEnum.INDICATOR_OFF)
+    sizes = {}
+    for name, sample in (("vision", vision), ("list", object_list), ("alert", alert), ("command", command)):
+        codec = codec_for(type(sample))
+        sizes[name] = len(codec.encode(sample) if codec is not None else sample.serialize())
+    return sizes
+
+
+def ddsperf_one_way(size: int, seconds: int, domain: int) -> tuple[float, float, float] | None:
+    """C one-way latency (ms: p50, p99, max) at ``size`` bytes: ddsperf's round trip / 2; None without ddsperf."""
+    ddsperf = shutil.which("ddsperf")
+    if ddsperf is None:
+        return None
+    env = dict(os.environ, CYCLONEDDS_URI=DDSPERF_URI)
+    pong = Child("ddsperf-pong", [ddsperf, "-i", str(domain), "-D", str(seconds + 5), "pong", "waitset"], env=env)
+    ping = Child("ddsperf-ping", [ddsperf, "-X", "-i", str(domain), "-D", str(seconds + 1), "ping", "100Hz", "size",
+                                  str(size), "waitset"], env=env)
+    try:
+        ping.wait_exit(timeout=seconds + 30)
+    finally:
+        stop_all([ping, pong], timeout=5)
+    rows = [match for line in ping.lines if (match := DDSPERF_LINE.search(line)) and int(match[5]) > 0]
+    if not rows:
+        return None
+    p50 = statistics.median(float(row[2]) for row in rows)
+    p99 = statistics.median(float(row[3]) for row in rows)
+    worst = max(float(row[4]) for row in rows)
+    return p50 / 2000, p99 / 2000, worst / 2000
+
+
+def percentiles(values: list[float]) -> tuple[float, float, float]:
+    if not values:
+        return float("nan"), float("nan"), float("nan")
+    array = np.asarray(values)
+    return float(np.percentile(array, 50)), float(np.percentile(array, 99)), float(array.max())
+
+
+def draw(results: list[Result], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, len(results), figsize=(5 * len(results), 4), squeeze=False)
+    for axis, result in zip(axes[0], results):
+        shown = [hop for hop in HOPS if result.hops.get(hop)]
+        axis.boxplot([result.hops[hop] for hop in shown], whis=(1, 99), showfliers=True)
+        axis.set_xticks(range(1, len(shown) + 1), [hop.replace(" -> ", "\n-> ") for hop in shown], fontsize=7)
+        axis.set_yscale("log")
+        axis.set_ylabel("ms")
+        axis.set_title(f"{result.sensors} sensor(s), {result.objects} objects/sample")
+    figure.suptitle("sensor-to-alert latency per hop (box: p25-p75, whiskers p1-p99)")
+    figure.tight_layout()
+    figure.savefig(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = ArgumentParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--sensors", default="1,50", help="numbers of vision sensors (default 1,50)")
+    parser.add_argument("--objects", default="2,10",
+                        help=f"objects per vision sample, at most {VISION_OBJECT_LIST_MAX_SIZE} (default 2,10)")
+    parser.add_argument("--window", type=float, default=20.0, help="seconds measured per configuration (default 20)")
+    parser.add_argument("--c-seconds", type=int, default=5, help="seconds of ddsperf per size (default 5; 0: none)")
+    parser.add_argument("--timeout", type=float, default=180.0, help="seconds allowed for start and discovery")
+    parser.add_argument("--mode", choices=["event", "periodic"], default="event",
+                        help="sensor fusion's config.mode (default event)")
+    parser.add_argument("--png", type=Path, default=None, help="draw the latency distributions into this PNG")
+    add_domain_option(parser, 86, "DDS domain id")
+    add_log_dir_option(parser, help="write every process's output and status records there (DIR/sN-oM/)")
+    args = parser.parse_args(argv)
+    try:
+        sensor_counts = [int(value) for value in args.sensors.split(",")]
+        object_counts = [int(value) for value in args.objects.split(",")]
+    except ValueError:
+        print(f"{PROG}: --sensors and --objects take numbers separated by commas", file=sys.stderr)
+        return 2
+    if any(n < 1 for n in sensor_counts) or any(not 0 < n <= VISION_OBJECT_LIST_MAX_SIZE for n in object_counts) \
+            or args.window <= 0 or args.c_seconds < 0:
+        print(f"{PROG}: --sensors must be positive, --objects 1..{VISION_OBJECT_LIST_MAX_SIZE}, --window positive",
+              file=sys.stderr)
+        return 2
+
+    results: list[Result] = []
+    for sensors in sensor_counts:
+        for objects in object_counts:
+            try:
+                result = run_one(sensors, objects, args.window, args.domain, args.timeout, args.log_dir, args.mode)
+            except (TimeoutError, RuntimeError) as error:
+                print(f"{PROG}: {sensors} sensor(s), {objects} object(s): {error}", file=sys.stderr)
+                return 1
+            result.sizes = serialized_sizes(objects, max(1, round(result.list_objects)))
+            results.append(result)
+
+    c_cache: dict[int, tuple[float, float, float] | None] = {}
+    ratio = float("nan")
+    alert_p99 = float("nan")
+    print(f"sensor-to-alert latency, sensor fusion in {args.mode} mode, loopback, {os.cpu_count()} CPU(s), "
+          f"load average {os.getloadavg()[0]:.1f}; ms")
+    for result in results:
+        print()
+        print(f"{result.sensors} vision sensor(s) x 10 Hz, {result.objects} objects a sample, lists of "
+              f"{result.list_objects:.1f} objects on average; {result.tall_samples} tall samples, "
+              f"{result.lost} without an alert taken by the HMI")
+        print(f"  {'hop':22} {'n':>5} {'p50':>8} {'p99':>8} {'max':>8} | {'C bytes':>7} {'C p50':>7} {'C p99':>7} "
+              f"{'x p50':>6} {'x p99':>6}")
+        c_chain_p99 = 0.0
+        worst_hop = 0.0
+        for hop in HOPS:
+            p50, p99, top = percentiles(result.hops.get(hop, []))
+            c_text = ""
+            if hop in C_HOPS and args.c_seconds > 0:
+                size = result.sizes[C_HOPS[hop]]
+                if size not in c_cache:
+                    print(f"{PROG}: ddsperf at {size} bytes ...", file=sys.stderr, flush=True)
+                    c_cache[size] = ddsperf_one_way(size, args.c_seconds, args.domain)
+                c = c_cache[size]
+                if c is not None:
+                    if hop != "command hop":
+                        c_chain_p99 += c[1]
+                    worst_hop = max(worst_hop, p99 / c[1])
+                    c_text = f"{size:>7} {c[0]:>7.3f} {c[1]:>7.3f} {p50 / c[0]:>6.1f} {p99 / c[1]:>6.1f}"
+                else:
+                    c_text = f"{size:>7} {'(no ddsperf)':>15}"
+            elif hop == "alert total" and c_chain_p99 > 0:
+                c_text = f"{'chain':>7} {'':>7} {c_chain_p99:>7.3f} {'':>6} {p99 / c_chain_p99:>6.1f}"
+            print(f"  {hop:22} {len(result.hops.get(hop, [])):>5} {p50:>8.3f} {p99:>8.3f} {top:>8.3f} | {c_text}")
+        alert_p99 = percentiles(result.hops.get("alert total", []))[1]
+        ratio = alert_p99 / c_chain_p99 if c_chain_p99 > 0 else float("nan")
+        goal = 2.0 if result.list_objects <= 10 else 3.0
+        print(f"  goal: alert total p99 <= {goal:g} ms: {alert_p99:.3f} ms "
+              f"{'met' if alert_p99 <= goal else 'NOT MET'}; no hop above 10x C: worst x{worst_hop:.1f} "
+              f"{'met' if 0 < worst_hop <= 10 else 'NOT MET' if worst_hop > 10 else '(no C figures)'}")
+    if args.png is not None:
+        draw(results, args.png)
+        print(f"latency distributions drawn into {args.png}")
+    print(f"alert_p99_ms={alert_p99:.3f} chain_vs_c={ratio:.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
