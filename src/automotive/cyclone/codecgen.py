@@ -153,7 +153,12 @@ class Models:
         annotations = getattr(cls, "__idl_annotations__", {})
         extensibility = annotations.get("extensibility", "final")
         label = cls.__idl_typename__.replace(".", "::")  # type: ignore[attr-defined]
-        model = Model(cls, label, label.replace("::", "_"), extensibility == "appendable")
+        ident = label.replace("::", "_")
+        if any(other.ident == ident for other in self.models.values()):
+            # Two IDL files may name a type alike (ShapeType: the Shapes Demo's in automotive.idl, the OMG suite's in
+            # shape.idl): the generated functions of the later one carry its module too.
+            ident = f"{ident}__{module_alias(class_module(cls))}"
+        model = Model(cls, label, ident, extensibility == "appendable")
         try:
             if extensibility not in ("final", "appendable"):
                 raise Unsupported(f"{extensibility} extensibility")

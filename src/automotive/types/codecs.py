@@ -1872,7 +1872,7 @@ def build(E):
             m45 = False
         return m_sensor_msgs_msg_dds_.PointCloud2_(m20, m22, m24, m34, m36, m38, m40, m43, m45), stop
 
-    def e1_ShapeType(sample):
+    def e1_ShapeType__m_shape(sample):
         v1 = sample
         s2 = v1.color
         if len(s2) > 128: raise OverBound('ShapeType.color', len(s2), 128, 'characters')
@@ -1888,7 +1888,7 @@ def build(E):
         buf += o4
         return bytes(buf)
 
-    def d1_ShapeType(data, pos, end, views):
+    def d1_ShapeType__m_shape(data, pos, end, views):
         t1, = S7.unpack_from(data, pos)
         pos += 4
         if not 0 < t1 <= end - pos: raise truncated('ShapeType.color', t1, pos, end)
@@ -1904,7 +1904,7 @@ def build(E):
         pos += t6
         return m_shape.ShapeType(s2, t3, t4, t5, o7), pos
 
-    def e2_ShapeType(sample):
+    def e2_ShapeType__m_shape(sample):
         v1 = sample
         buf = bytearray(S25.pack(H2A, 0))
         h2 = len(buf)
@@ -1923,7 +1923,7 @@ def build(E):
         U32.pack_into(buf, h2 - 4, len(buf) - h2)
         return bytes(buf)
 
-    def d2_ShapeType(data, pos, end, views):
+    def d2_ShapeType__m_shape(data, pos, end, views):
         size, = U32.unpack_from(data, pos)
         start = pos + 4
         stop = start + size
@@ -1947,9 +1947,9 @@ def build(E):
                 return m_shape.ShapeType(s2, t3, t4, t5, o7), stop
         except Exception:
             pass
-        return t2_ShapeType(data, start, stop, end, views)
+        return t2_ShapeType__m_shape(data, start, stop, end, views)
 
-    def t2_ShapeType(data, start, stop, end, views):
+    def t2_ShapeType__m_shape(data, start, stop, end, views):
         # ShapeType shorter than this version of it: the members past its end take their defaults
         pos = start
         if pos < stop:
@@ -2112,6 +2112,6 @@ CODEC_PARTS = {
     m_builtin_interfaces_msg_dds_.Time_: _codec(m_builtin_interfaces_msg_dds_.Time_, 'builtin_interfaces::msg::dds_::Time_', 'builtin_interfaces_msg_dds__Time_', True, False, {}),
     m_sensor_msgs_msg_dds_.PointField_: _codec(m_sensor_msgs_msg_dds_.PointField_, 'sensor_msgs::msg::dds_::PointField_', 'sensor_msgs_msg_dds__PointField_', False, False, {}),
     m_sensor_msgs_msg_dds_.PointCloud2_: _codec(m_sensor_msgs_msg_dds_.PointCloud2_, 'sensor_msgs::msg::dds_::PointCloud2_', 'sensor_msgs_msg_dds__PointCloud2_', True, True, {}),
-    m_shape.ShapeType: _codec(m_shape.ShapeType, 'ShapeType', 'ShapeType', True, True, {}),
+    m_shape.ShapeType: _codec(m_shape.ShapeType, 'ShapeType', 'ShapeType__m_shape', True, True, {}),
     m_std_msgs_msg_dds_.Header_: _codec(m_std_msgs_msg_dds_.Header_, 'std_msgs::msg::dds_::Header_', 'std_msgs_msg_dds__Header_', True, False, {}),
 }
