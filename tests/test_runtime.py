@@ -135,6 +135,17 @@ def test_count_and_clean_exit(apps, domain_id: int) -> None:  # type: ignore[no-
     assert "Traceback" not in hmi.output
 
 
+def test_sigusr1_prints_every_threads_stack_and_the_application_goes_on(apps,  # type: ignore[no-untyped-def]
+                                                                        domain_id: int) -> None:
+    hmi = apps.start("hmi", "--ui", "console", "--domain", str(domain_id))
+    hmi.wait_for("waiting for alerts")
+    hmi.send_signal(signal.SIGUSR1)
+    hmi.wait_for(r"^Current thread 0x[0-9a-f]+ \(most recent call first\):$")
+    hmi.wait_for(r'^  File ".*automotive/bus/app\.py", line \d+ in run$')  # the main thread, in the run loop
+    assert hmi.poll() is None  # a dump, not an end
+    assert hmi.stop(signal.SIGTERM) == 0
+
+
 def test_an_application_says_when_it_sees_no_peer(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
     hmi = apps.start("hmi", "--ui", "console", "--domain", str(domain_id), "-D", "config.matchReport=1")
     hmi.wait_for(r"\[AlertTopic\] reader: no writer matched after 1 s")

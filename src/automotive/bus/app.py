@@ -16,7 +16,8 @@ Common flags: ``--properties FILE`` (default: the shipped ``properties/<name>.pr
 ``--domain``, ``--network``, ``--interface``, ``--peers``, ``--stats FILE`` (status as JSON lines,
 :mod:`automotive.bus.stats`), ``--filter TOPIC=EXPR`` (a content filter on the readers of TOPIC, also
 ``config.filter.<TOPIC>`` in the properties: :mod:`automotive.bus.contentfilter`). Ctrl-C and SIGTERM end the loop;
-the entities are deleted and the exit code is 0. Bad input ends with one line on stderr and exit code 2.
+the entities are deleted and the exit code is 0. Bad input ends with one line on stderr and exit code 2. SIGUSR1
+prints every thread's stack on stderr and the application goes on.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ from automotive.bus.cli import (
     add_network_options,
     add_override_option,
     add_stats_option,
+    dump_stacks_on_request,
 )
 from automotive.bus.contentfilter import TopicFilters
 from automotive.bus.endpoints import Databus
@@ -286,6 +288,7 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
     """Parse the command line, build the application, run ``body`` and shut down; return the exit code."""
     args = build_parser(name, description, add_arguments).parse_args(argv)
     log = setup_logging(name)
+    dump_stacks_on_request()  # SIGUSR1: where each thread is (the launcher asks before it kills a hung application)
     start_memory_probe(name)  # a diagnostic, only with AUTOMOTIVE_MEMTRACE set (automotive.bus.memtrace)
     app: Application | None = None
 

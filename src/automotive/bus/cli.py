@@ -4,6 +4,8 @@
   ``--help``, not for a typo).
 - The options several programs share, declared once: ``add_domain_option``, ``add_network_options``,
   ``add_override_option``, ``add_log_dir_option``, ``add_stats_option``.
+- ``dump_stacks_on_request``: SIGUSR1 prints every thread's Python stack on stderr, so that a process that does not
+  stop when asked shows where it waits (the launcher asks before it kills).
 
 The standard library only.
 """
@@ -11,12 +13,21 @@ The standard library only.
 from __future__ import annotations
 
 import argparse
+import faulthandler
+import signal
 import sys
 from pathlib import Path
 from typing import Any, NoReturn
 
 EXIT_BAD_INPUT = 2
 NETWORK_MODES = ("loopback", "lan", "peers")
+DUMP_STACKS_SIGNAL = signal.SIGUSR1
+
+
+def dump_stacks_on_request() -> None:
+    """On SIGUSR1, write every thread's stack to stderr and go on. faulthandler writes from the C signal handler, so
+    the dump comes even while the main thread is stuck inside a C call that holds no Python frame to interrupt."""
+    faulthandler.register(DUMP_STACKS_SIGNAL, file=sys.stderr, all_threads=True, chain=False)
 
 
 class ArgumentParser(argparse.ArgumentParser):

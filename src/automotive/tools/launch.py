@@ -25,7 +25,9 @@ if possible, else tmux in a terminal, else background; with no terminal (a pipe,
 The launcher owns the application processes in every mode (the windows only show their log files), so stopping works
 the same everywhere: Ctrl-C, SIGTERM or `automotive-launch stop` sends SIGTERM to each application, waits --stop-timeout
 seconds, sends SIGKILL to any left, and prints how each one ended. An application that ends on its own is reported at
-once with its exit code; the others go on. A second Ctrl-C kills at once.
+once with its exit code; the others go on. A second Ctrl-C kills at once. Before it kills an application that did not
+stop, the launcher asks it for its threads' stacks (SIGUSR1), which go to its log: where it hung. The launcher
+answers SIGUSR1 the same way, and `automotive-launch stop` asks it before it kills a launcher that does not end.
 
 Each application is started as ``python -m automotive.apps.<name>`` with the launcher's own interpreter, so it runs
 the same installation.
@@ -54,12 +56,14 @@ from typing import IO
 
 from automotive import config
 from automotive.bus.cli import (
+    DUMP_STACKS_SIGNAL,
     EXIT_BAD_INPUT,
     ArgumentParser,
     add_domain_option,
     add_log_dir_option,
     add_network_options,
     add_override_option,
+    dump_stacks_on_request,
 )
 from automotive.tools import children
 from automotive.tools.children import Child, Line
@@ -73,6 +77,7 @@ MODES = ("auto", "window", "tmux", "background")
 # ownership; readers follow the stronger live instance.
 REDUNDANT_APPS = ("sensor_fusion", "collision_avoidance")
 PRIMARY_STRENGTH, STANDBY_STRENGTH = 20, 10
+STACK_DUMP_WAIT_S = 1.0  # the time given to a hung process to write its threads' stacks before SIGKILL
 DEFAULT_STOP_TIMEOUT = 10.0
 PID_FILE = "launch.pid"
 SUMMARY_FILE = "launch-summary.txt"
@@ -477,7 +482,8 @@ class Supervisor:
         app.child.join_output(timeout=2)  # its last lines first
         seconds = app.ended - app.started
         if app.killed:
-            app.how = f"did not stop within {self.stop_timeout:g} s after SIGTERM: {describe_code(code)}"
+            app.how = (f"did not stop within {self.stop_timeout:g} s after SIGTERM: {describe_code(code)} "
+                       f"(its threads' stacks are in {app.log_path})")
         elif app.term_sent is not None:
             app.how = f"stopped on SIGTERM, {describe_code(code)} ({app.ended - app.term_sent:.1f} s)"
         else:
@@ -525,7 +531,13 @@ class Supervisor:
             self.poll()
             self.wake.wait(0.05)
             self.wake.clear()
-        for app in self.running():
+        hung = [app for app in self.running() if app.process.poll() is None]
+        if hung and not self.kill_now:
+            # Where each one waits, in its log, before it is killed: a hang is a defect worth finding.
+            for app in hung:
+                app.child.send_signal(DUMP_STACKS_SIGNAL)
+            time.sleep(STACK_DUMP_WAIT_S)
+        for app in hung:
             if app.process.poll() is None:
                 app.killed = True
                 self._signal(app, signal.SIGKILL)
@@ -570,6 +582,7 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
     supervisor = Supervisor(specs, log_dir, args.stop_timeout, console, views,
                             "tmux" if args.tmux_session else mode)
     supervisor.missing = missing
+    dump_stacks_on_request()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, supervisor.on_signal)
     for name, reason in missing:
@@ -700,11 +713,15 @@ def stop_command(argv: list[str]) -> int:
     while pid_alive(launcher) and time.monotonic() < deadline:
         time.sleep(0.1)  # not our child: polling /proc is the only way to see it end
     if pid_alive(launcher):
+        os.kill(launcher, DUMP_STACKS_SIGNAL)  # where the launcher hangs, on its stderr, before it is killed
+        print(f"launch stop: the launcher did not end within {timeout:g} s: asked for its threads' stacks (on its "
+              "stderr)")
+        time.sleep(STACK_DUMP_WAIT_S)  # not our child: nothing to wait on but the time faulthandler needs
         for name, pid in app_pids(info).items():
             os.kill(pid, signal.SIGKILL)
             print(f"launch stop: killed {name} (pid {pid})")
         os.kill(launcher, signal.SIGKILL)
-        print(f"launch stop: the launcher did not end within {timeout:g} s: killed it")
+        print("launch stop: killed the launcher")
         (args.log_dir / PID_FILE).unlink(missing_ok=True)
         return 1
     summary = args.log_dir / SUMMARY_FILE
