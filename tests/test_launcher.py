@@ -135,18 +135,19 @@ def test_an_application_that_dies_is_reported_with_its_exit_code(apps, domain_id
 def test_an_application_that_does_not_stop_is_killed_after_the_stop_timeout(apps,  # type: ignore[no-untyped-def]
                                                                             domain_id: int, tmp_path: Path) -> None:
     launcher = apps.start_command("launch", [*LAUNCH, "--mode", "background", "--domain", str(domain_id),
-                                             "--log-dir", str(tmp_path), "--stop-timeout", "1", "vision", "hmi"],
+                                             "--log-dir", str(tmp_path), "--stop-timeout", "5", "vision", "hmi"],
                                   env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
     pids = started_pids(launcher)
     launcher.wait_for(app_line("vision", STEADY["vision"]))
+    launcher.wait_for(app_line("hmi", "waiting for alerts"))  # its SIGTERM handler is set: it stops cleanly
     os.kill(pids["vision"], signal.SIGSTOP)  # hung: it neither stops on SIGTERM nor dumps its stacks
     try:
         launcher.process.send_signal(signal.SIGTERM)
-        assert launcher.wait_exit(timeout=15) == 1
+        assert launcher.wait_exit(timeout=20) == 1
     finally:
         if alive(pids["vision"]):
             os.kill(pids["vision"], signal.SIGKILL)
-    launcher.wait_for(r"^launch\s+\| vision did not stop within 1 s after SIGTERM: killed by SIGKILL \(signal 9\) "
+    launcher.wait_for(r"^launch\s+\| vision did not stop within 5 s after SIGTERM: killed by SIGKILL \(signal 9\) "
                       rf"\(its threads' stacks are in {re.escape(str(tmp_path / 'vision.log'))}\)$", timeout=1)
     launcher.wait_for(r"^launch\s+\| hmi stopped on SIGTERM, exit code 0", timeout=1)
     assert not any(alive(pid) for pid in pids.values())

@@ -47,6 +47,7 @@ from automotive.bus.cli import (
     add_override_option,
     add_stats_option,
     dump_stacks_on_request,
+    stop_dumping_stacks,
 )
 from automotive.bus.contentfilter import TopicFilters
 from automotive.bus.endpoints import Databus
@@ -315,3 +316,4 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
         if app is not None:
             app.close()
             log.info("stopped")
+        stop_dumping_stacks()

@@ -5,7 +5,7 @@
 - The options several programs share, declared once: ``add_domain_option``, ``add_network_options``,
   ``add_override_option``, ``add_log_dir_option``, ``add_stats_option``.
 - ``dump_stacks_on_request``: SIGUSR1 prints every thread's Python stack on stderr, so that a process that does not
-  stop when asked shows where it waits (the launcher asks before it kills).
+  stop when asked shows where it waits (the launcher asks before it kills); ``stop_dumping_stacks`` once it ends.
 
 The standard library only.
 """
@@ -15,19 +15,50 @@ from __future__ import annotations
 import argparse
 import faulthandler
 import signal
+import socket
 import sys
+import threading
 from pathlib import Path
 from typing import Any, NoReturn
 
 EXIT_BAD_INPUT = 2
 NETWORK_MODES = ("loopback", "lan", "peers")
 DUMP_STACKS_SIGNAL = signal.SIGUSR1
+_stack_dump_thread: threading.Thread | None = None
 
 
 def dump_stacks_on_request() -> None:
-    """On SIGUSR1, write every thread's stack to stderr and go on. faulthandler writes from the C signal handler, so
-    the dump comes even while the main thread is stuck inside a C call that holds no Python frame to interrupt."""
-    faulthandler.register(DUMP_STACKS_SIGNAL, file=sys.stderr, all_threads=True, chain=False)
+    """On SIGUSR1, write every thread's stack to stderr and go on (call it from the main thread).
+
+    The dump is not made in the signal handler: a Python handler runs only when the main thread is back in Python,
+    never while it is stuck in a C call (the case worth diagnosing), and faulthandler's own signal-time dump of all
+    threads reads their frames without the GIL and was seen to crash the process (SIGSEGV). Python's C-level handler
+    writes the signal's number to the wake-up fd at once, whatever the main thread does; a thread waiting there
+    makes the dump holding the GIL, so every frame it reads stays valid.
+    """
+    global _stack_dump_thread
+    signal.signal(DUMP_STACKS_SIGNAL, lambda signum, frame: None)  # a Python handler, so that the byte is written
+    if _stack_dump_thread is not None:  # once a process (a test may run several programs' main in one)
+        return
+    reader, writer = socket.socketpair()
+    writer.setblocking(False)  # set_wakeup_fd needs it: the C handler must never block
+    signal.set_wakeup_fd(writer.fileno(), warn_on_full_buffer=False)
+    _stack_dump_thread = threading.Thread(target=_dump_stacks_when_asked, args=(reader, writer), name="stack-dump",
+                                          daemon=True)
+    _stack_dump_thread.start()
+
+
+def _dump_stacks_when_asked(reader: socket.socket, writer: socket.socket) -> None:
+    # ``writer`` is an argument only to stay open (and registered) as long as this thread runs.
+    while data := reader.recv(64):
+        if DUMP_STACKS_SIGNAL in data:  # other handled signals (SIGTERM, SIGINT) write their byte here too
+            faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+
+
+def stop_dumping_stacks() -> None:
+    """Ignore SIGUSR1 from here on: called once the process is ending, so that a process asked for its stacks while
+    it exits still ends with its own exit code (SIGUSR1's default action terminates)."""
+    signal.signal(DUMP_STACKS_SIGNAL, signal.SIG_IGN)
 
 
 class ArgumentParser(argparse.ArgumentParser):

@@ -64,6 +64,7 @@ from automotive.bus.cli import (
     add_network_options,
     add_override_option,
     dump_stacks_on_request,
+    stop_dumping_stacks,
 )
 from automotive.tools import children
 from automotive.tools.children import Child, Line
@@ -532,6 +533,8 @@ class Supervisor:
             self.wake.wait(0.05)
             self.wake.clear()
         hung = [app for app in self.running() if app.process.poll() is None]
+        for app in hung:
+            app.killed = True  # it did not stop in time, whatever ends it now
         if hung and not self.kill_now:
             # Where each one waits, in its log, before it is killed: a hang is a defect worth finding.
             for app in hung:
@@ -539,7 +542,6 @@ class Supervisor:
             time.sleep(STACK_DUMP_WAIT_S)
         for app in hung:
             if app.process.poll() is None:
-                app.killed = True
                 self._signal(app, signal.SIGKILL)
         for app in self.running():
             try:
@@ -602,6 +604,7 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
         (log_dir / SUMMARY_FILE).write_text("\n".join(summary) + "\n")
         supervisor.remove_pid_file()
         console.close()
+        stop_dumping_stacks()
     return supervisor.exit_code()
 
 
