@@ -46,11 +46,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from automotive import config
 from automotive.bus import stats
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
 from automotive.cyclone.codecs import codec_for
 from automotive.tools.children import Child, program_command, stop_all
@@ -270,10 +269,11 @@ def ddsperf_one_way(size: int, seconds: int, domain: int) -> tuple[float, float,
 
 
 def percentiles(values: list[float]) -> tuple[float, float, float]:
-    if not values:
+    """p50, p99 and max (ms); NaN when there is no value."""
+    p50, p99 = percentile(values, 0.5), percentile(values, 0.99)
+    if p50 is None or p99 is None:
         return float("nan"), float("nan"), float("nan")
-    array = np.asarray(values)
-    return float(np.percentile(array, 50)), float(np.percentile(array, 99)), float(array.max())
+    return p50, p99, max(values)
 
 
 def draw(results: list[Result], path: Path) -> None:

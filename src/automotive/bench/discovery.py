@@ -33,6 +33,7 @@ import time
 from pathlib import Path
 
 from automotive.bus.cli import ArgumentParser, add_domain_option
+from automotive.bus.latency import percentile
 from automotive.tools import netlab
 from automotive.tools.children import Child
 
@@ -49,11 +50,6 @@ def run(*command: str, check: bool = True) -> subprocess.CompletedProcess[str]:
     if check and result.returncode != 0:
         raise SystemExit(f"{PROG}: {' '.join(command)} failed: {result.stderr.strip()}")
     return result
-
-
-def percentile(values: list[float], q: float) -> float:
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, max(0, round(q / 100 * (len(ordered) - 1))))]
 
 
 class Namespace(netlab.Namespace):
@@ -190,9 +186,9 @@ def bench(args: argparse.Namespace) -> int:
                 print(f"  late join {number}: every flow matched after {joins[-1]:.2f} s (last: {slowest})",
                       flush=True)
         print(f"late joins: min {min(joins):.2f} s, median {statistics.median(joins):.2f} s, "
-              f"p99 {percentile(joins, 99):.2f} s, max {max(joins):.2f} s")
+              f"p99 {percentile(joins, 0.99):.2f} s, max {max(joins):.2f} s")
         print(f"discovery_datagrams_per_s={rate:.0f} cyclone_cpu_ms_per_s={cpu_ms:.1f}")
-        print(f"late_join_p99_s={percentile(joins, 99):.2f}")
+        print(f"late_join_p99_s={percentile(joins, 0.99):.2f}")
         return 0
     finally:
         subprocess.run(namespace.exec(sys.executable, *LAUNCH, "stop", "--log-dir", str(log_dir)), capture_output=True)

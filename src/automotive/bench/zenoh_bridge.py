@@ -43,6 +43,7 @@ from typing import Any
 
 from automotive.bus import stats
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
 from automotive.tools import netlab
 from automotive.tools.children import Child, RunFailed, StatsChild, program_command
@@ -200,13 +201,6 @@ def bridge_command(site: str, domain: int, certs: Path, listen: str, connect: st
     return program_command("zenoh_bridge", "--domain", str(domain), "-D", f"zenoh.site={site}", *link,
                            "-D", f"zenoh.tls.ca={certs}/ca.pem", "-D", f"zenoh.tls.certificate={certs}/{site}.pem",
                            "-D", f"zenoh.tls.key={certs}/{site}.key", "-D", f"bridge.maxFrequency={budget}")
-
-
-def percentile(values: list[float], fraction: float) -> float | None:
-    if not values:
-        return None
-    ordered = sorted(values)
-    return ordered[min(len(ordered) - 1, int(fraction * len(ordered)))]
 
 
 def run_setup(setup: Setup, seconds: float, certs: Path, env: dict[str, str], log_dir: Path) -> list[Row]:

@@ -1,4 +1,6 @@
-"""Latency percentiles in fixed memory, however many samples: a histogram of logarithmic bins.
+"""Latency percentiles: exact ones of a list (``percentile``, the benchmarks) and, in fixed memory however many
+samples, a histogram of logarithmic bins (``LatencyHistogram``, a viewer that runs for hours). Both take the sample of
+rank ``int(fraction * count)`` in sorted order, so their figures compare.
 
 A viewer that runs for hours cannot keep every latency (camera_sub kept two numbers per frame: +143 kB a minute,
 docs/memory.md). In the bus layer so that every program that measures latency (camera_sub, the benchmarks) shares
@@ -10,6 +12,7 @@ imports, so installing it broke the RTI tests.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -19,6 +22,15 @@ HIGHEST_NS = 100_000_000_000
 RELATIVE_WIDTH = 0.001
 _LOG_STEP = math.log1p(RELATIVE_WIDTH)
 _BINS = int(math.log(HIGHEST_NS / LOWEST_NS) / _LOG_STEP) + 2
+
+
+def percentile(values: Sequence[float], fraction: float) -> float | None:
+    """The value at ``fraction`` (0.5, 0.99) of ``values``: the one of rank ``int(fraction * count)`` in sorted order;
+    None when there is none."""
+    if not values:
+        return None
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(fraction * len(ordered)))]
 
 
 class LatencyHistogram:
