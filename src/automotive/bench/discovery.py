@@ -34,15 +34,13 @@ from pathlib import Path
 
 from automotive.bus.cli import ArgumentParser, add_domain_option
 from automotive.bus.latency import percentile
-from automotive.tools import netlab
-from automotive.tools.children import Child
+from automotive.tools import launch, netlab
+from automotive.tools.children import Child, program_command
 
 PROG = "automotive-bench-discovery"
-LAUNCH = ("-m", "automotive.tools.launch")  # the launcher, with this interpreter
 DISCOVERY_THREADS = ("tev", "dq.builtins")
 RECEPTION_THREADS = ("recv", "recvUC", "recvMC")
 JOINER_INDEXES = range(5)  # RTI Connext's default probe of an initial peer without an index range: 0-4
-STEADY = re.compile(r"^launch\s+\| \d+ application\(s\) running")
 
 
 def run(*command: str, check: bool = True) -> subprocess.CompletedProcess[str]:
@@ -154,10 +152,10 @@ def bench(args: argparse.Namespace) -> int:
     launch_args = ["--mode", "background", "--domain", str(domain), "--log-dir", str(log_dir),
                    *(["--vision-sensors", str(args.vision_sensors)] if args.vision_sensors > 1 else []),
                    *(["--except", args.exclude] if args.exclude else [])]
-    launcher = Child("launch", namespace.exec(sys.executable, *LAUNCH, *launch_args), env=env)
+    launcher = Child("launch", program_command("launch", *launch_args, python=namespace.prefix), env=env)
     try:
         try:
-            line = launcher.wait_for(STEADY.pattern, timeout=120)
+            line = launcher.wait_for(launch.RUNNING_LINE, timeout=120)
         except AssertionError:
             raise SystemExit(f"{PROG}: the launcher ended before the system ran") from None
         print(line.split("| ", 1)[1].strip())
@@ -191,7 +189,8 @@ def bench(args: argparse.Namespace) -> int:
         print(f"late_join_p99_s={percentile(joins, 0.99):.2f}")
         return 0
     finally:
-        subprocess.run(namespace.exec(sys.executable, *LAUNCH, "stop", "--log-dir", str(log_dir)), capture_output=True)
+        subprocess.run(program_command("launch", "stop", "--log-dir", str(log_dir), python=namespace.prefix),
+                       capture_output=True)
         launcher.stop(timeout=30)
         namespace.delete()
 

@@ -40,12 +40,10 @@ import psutil
 
 from automotive.bus import stats as status_records
 from automotive.bus.cli import ArgumentParser, add_domain_option
-from automotive.tools import netlab
-from automotive.tools.children import Child
+from automotive.tools import launch, netlab
+from automotive.tools.children import Child, program_command
 
 PROG = "automotive-bench-soak"
-LAUNCH = ("-m", "automotive.tools.launch")  # the launcher, with this interpreter
-STEADY = r"^launch\s+\| \d+ application\(s\) running"
 LAUNCHER = "launch"
 STOP_TIMEOUT_S = 10.0
 SLOPE_GOAL_KB_PER_H = 200.0
@@ -287,10 +285,10 @@ def bench(args: argparse.Namespace) -> int:
         return 1
     samples_out = open(args.samples, "w", encoding="utf-8") if args.samples else None
     try:
-        launcher = Child(LAUNCHER, namespace.exec(sys.executable, *LAUNCH, *launch_args), env=env)
+        launcher = Child(LAUNCHER, program_command("launch", *launch_args, python=namespace.prefix), env=env)
         try:
             try:
-                line = launcher.wait_for(STEADY, timeout=120)
+                line = launcher.wait_for(launch.RUNNING_LINE, timeout=120)
             except AssertionError:
                 raise SystemExit(f"{PROG}: the launcher ended before the system ran:\n{launcher.output[-2000:]}") \
                     from None

@@ -83,6 +83,8 @@ DEFAULT_STOP_TIMEOUT = 10.0
 PID_FILE = "launch.pid"
 SUMMARY_FILE = "launch-summary.txt"
 LAUNCHER_LABEL = "launch"
+# The launcher's line once every application is started: what a program driving the launcher waits for.
+RUNNING_LINE = rf"^{LAUNCHER_LABEL}\s+\| \d+ application\(s\) running"
 COLOURS = (32, 36, 33, 35, 34, 92, 96, 93, 95, 94, 91, 31)
 PR_SET_PDEATHSIG = 1
 # Terminal emulators, by the base name of their executable: how to give a window a title and a command to run.
