@@ -322,8 +322,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.minutes <= 0 or args.warmup < 0 or args.warmup >= args.minutes or args.interval <= 0:
         parser.error("--minutes must be > 0, --warmup from 0 to below --minutes, --interval > 0")
-    if not 0 <= args.domain <= 232:
-        parser.error(f"--domain {args.domain}: expected 0..232")
     if not args.chart.resolve().parent.is_dir():
         parser.error(f"--chart {args.chart}: folder {args.chart.parent} does not exist")
     if args.samples is not None and not args.samples.resolve().parent.is_dir():

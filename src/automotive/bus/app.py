@@ -41,6 +41,7 @@ from automotive import config, cyclone
 from automotive.bus import badsamples, cyclonelog
 from automotive.bus.cli import (
     EXIT_BAD_INPUT,
+    MAX_DOMAIN_ID,
     ArgumentParser,
     add_domain_option,
     add_network_options,
@@ -110,7 +111,7 @@ class Application:
             value = getattr(args, flag)
             if value is not None:
                 props.override([f"{key}={value}"], f"--{flag}")
-        self.domain_id = props.get_int("config.domainId", 0, minimum=0, maximum=232)
+        self.domain_id = props.get_int("config.domainId", 0, minimum=0, maximum=MAX_DOMAIN_ID)
         self.library = props.get_str("qos.Library", DEFAULT_LIBRARY)
         self.profiles = QosProfiles(props.get_path("qos.File", str(config.qos_file())))
         # Redundant mode (hot-standby sensor_fusion and collision_avoidance, exclusive ownership): opt-in, because

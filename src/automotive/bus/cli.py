@@ -23,6 +23,7 @@ from typing import Any, NoReturn
 
 EXIT_BAD_INPUT = 2
 NETWORK_MODES = ("loopback", "lan", "peers")
+MAX_DOMAIN_ID = 232
 DUMP_STACKS_SIGNAL = signal.SIGUSR1
 _stack_dump_thread: threading.Thread | None = None
 
@@ -72,11 +73,22 @@ class ArgumentParser(argparse.ArgumentParser):
         sys.exit(EXIT_BAD_INPUT)
 
 
+def domain_id(text: str) -> int:
+    """An argparse type: a DDS domain id, 0..232 (the highest whose ports fit in 16 bits with the RTPS defaults)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= MAX_DOMAIN_ID:
+        raise argparse.ArgumentTypeError(f"expected a domain id 0..{MAX_DOMAIN_ID}, not '{text}'")
+    return value
+
+
 def add_domain_option(parser: argparse.ArgumentParser, default: int | None = None,
                       help: str = "DDS domain id (overrides config.domainId)") -> None:
     if default is not None:
         help = f"{help} (default {default})"
-    parser.add_argument("--domain", type=int, default=default, help=help)
+    parser.add_argument("--domain", type=domain_id, default=default, help=help)
 
 
 def add_network_options(parser: argparse.ArgumentParser, for_every: str = "") -> None:

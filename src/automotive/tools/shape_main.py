@@ -58,6 +58,7 @@ from cyclonedds.topic import Topic
 from automotive import config
 from automotive.bus.app import DEFAULT_LIBRARY
 from automotive.bus.checkedreader import CheckedReader
+from automotive.bus.cli import MAX_DOMAIN_ID
 from automotive.bus.contentfilter import ContentFilter, FilteredReader, FilterError
 from automotive.bus.endpoints import Databus
 from automotive.bus.errors import ConfigError
@@ -230,8 +231,8 @@ def parse_options(argv: Sequence[str]) -> ShapeOptions:
         o.debug = _choice("-v", text, "ed") == "d"
     if (text := get("-d")) is not None:
         o.domain_id = _integer("-d", text, 0)
-        if o.domain_id > 232:
-            raise UsageError(f"-d {text}: expected a domain id 0..232")
+        if o.domain_id > MAX_DOMAIN_ID:
+            raise UsageError(f"-d {text}: expected a domain id 0..{MAX_DOMAIN_ID}")
     if (text := get("-k")) is not None:
         o.history_depth = _integer("-k", text, 0)
     if (text := get("-f")) is not None:
