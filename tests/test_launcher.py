@@ -122,7 +122,7 @@ def test_an_application_that_dies_is_reported_with_its_exit_code(apps, domain_id
     assert alive(pids["sensor_fusion"])  # the others go on (until stopped below: "stopped on SIGTERM")
 
     stop = subprocess.run([*LAUNCH, "stop", "--log-dir", str(tmp_path)], capture_output=True,
-                          text=True, timeout=STOP_TIMEOUT + 20)
+                          text=True, timeout=STOP_TIMEOUT + 30)
     # Seen once in a clean-clone run: the launcher did not end. What hung, with the threads' stacks dumped on the way.
     assert stop.returncode == 0, "\n".join([stop.stdout, stop.stderr, "--- launcher:", launcher.output[-6000:],
                                             "--- sensor_fusion.log:", tail(tmp_path / "sensor_fusion.log")])
@@ -166,7 +166,7 @@ def test_subset_with_three_vision_sensors_stopped_by_launch_stop(apps, domain_id
                             text=True, timeout=10)
     assert status.returncode == 0 and status.stdout.count("running") == 4, status.stdout
     stop = subprocess.run([*LAUNCH, "stop", "--log-dir", str(tmp_path)], capture_output=True,
-                          text=True, timeout=STOP_TIMEOUT + 20)
+                          text=True, timeout=STOP_TIMEOUT + 30)
     assert stop.returncode == 0, stop.stderr
     assert stop.stdout.count("stopped on SIGTERM, exit code 0") == 4, stop.stdout
     assert launcher.wait_exit(timeout=5) == 0

@@ -79,6 +79,9 @@ MODES = ("auto", "window", "tmux", "background")
 REDUNDANT_APPS = ("sensor_fusion", "collision_avoidance")
 PRIMARY_STRENGTH, STANDBY_STRENGTH = 20, 10
 STACK_DUMP_WAIT_S = 1.0  # the time given to a hung process to write its threads' stacks before SIGKILL
+# What the launcher may still take after its stop timeout, at worst: the stack dump, 5 s for the killed to end, 2 s
+# per output stream for their last lines. `launch stop` gives it that, and a margin, before it kills the launcher.
+STOP_MARGIN_S = STACK_DUMP_WAIT_S + 5 + 2 * 2 + 5
 DEFAULT_STOP_TIMEOUT = 10.0
 PID_FILE = "launch.pid"
 SUMMARY_FILE = "launch-summary.txt"
@@ -693,7 +696,7 @@ def stop_command(argv: list[str]) -> int:
     parser = ArgumentParser(prog=f"{PROG} stop", description="Stop the running launcher.")
     add_log_dir_option(parser, DEFAULT_LOG_DIR, "the launcher's --log-dir")
     parser.add_argument("--timeout", type=float, default=None,
-                        help="how long to wait for the launcher (default: its stop timeout + 10 s)")
+                        help=f"how long to wait for the launcher (default: its stop timeout + {STOP_MARGIN_S:g} s)")
     args = parser.parse_args(argv)
     info = read_pid_file(args.log_dir)
     if info is None:
@@ -711,7 +714,7 @@ def stop_command(argv: list[str]) -> int:
         return 0
     stop_timeout = info.get("stop_timeout")
     timeout = args.timeout if args.timeout is not None else (
-        float(stop_timeout) if isinstance(stop_timeout, (int, float)) else DEFAULT_STOP_TIMEOUT) + 10
+        float(stop_timeout) if isinstance(stop_timeout, (int, float)) else DEFAULT_STOP_TIMEOUT) + STOP_MARGIN_S
     print(f"launch stop: stopping the launcher (pid {launcher})")
     os.kill(launcher, signal.SIGTERM)
     deadline = time.monotonic() + timeout
