@@ -19,6 +19,7 @@ from apprunner import AppRunner, CommandProcess
 from automotive import config
 from automotive.bus import stats
 from automotive.tools import children
+from automotive.tools.launch import SECOND_INTERRUPT_AFTER_S
 
 ROOT = Path(__file__).resolve().parent.parent
 # The console script automotive-launch, as the running interpreter runs it.
@@ -151,6 +152,34 @@ def test_an_application_that_does_not_stop_is_killed_after_the_stop_timeout(apps
                       rf"\(its threads' stacks are in {re.escape(str(tmp_path / 'vision.log'))}\)$", timeout=1)
     launcher.wait_for(r"^launch\s+\| hmi stopped on SIGTERM, exit code 0", timeout=1)
     assert not any(alive(pid) for pid in pids.values())
+
+
+def test_one_ctrl_c_delivered_twice_stops_cleanly_and_a_later_second_one_kills(apps,  # type: ignore[no-untyped-def]
+                                                                               domain_id: int,
+                                                                               tmp_path: Path) -> None:
+    # `timeout -s INT 60 scripts/launch` delivers its interrupt to the launcher and to its process group: one stop,
+    # not the "second Ctrl-C" that kills without waiting.
+    launcher = apps.start_command("launch", [*LAUNCH, "--mode", "background", "--domain", str(domain_id),
+                                             "--log-dir", str(tmp_path), "--stop-timeout", "60", "vision", "hmi"],
+                                  env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    pids = started_pids(launcher)
+    launcher.wait_for(app_line("vision", STEADY["vision"]))
+    launcher.wait_for(app_line("hmi", "waiting for alerts"))
+    os.kill(pids["vision"], signal.SIGSTOP)  # it cannot stop: only a kill ends it
+    try:
+        first = time.monotonic()
+        launcher.process.send_signal(signal.SIGINT)
+        launcher.process.send_signal(signal.SIGINT)
+        launcher.wait_for(r"^launch\s+\| hmi stopped on SIGTERM, exit code 0")
+        assert alive(pids["vision"])  # waited for, not killed
+        # A person's second Ctrl-C comes later: wait until it is past the launcher's window for duplicates.
+        time.sleep(max(0.0, first + SECOND_INTERRUPT_AFTER_S + 0.2 - time.monotonic()))
+        launcher.process.send_signal(signal.SIGINT)
+        assert launcher.wait_exit(timeout=20) == 1  # long before the 60 s stop timeout
+    finally:
+        if alive(pids["vision"]):
+            os.kill(pids["vision"], signal.SIGKILL)
+    launcher.wait_for(r"^launch\s+\| vision killed at once on a second Ctrl-C: killed by SIGKILL", timeout=1)
 
 
 def test_subset_with_three_vision_sensors_stopped_by_launch_stop(apps, domain_id: int,  # type: ignore[no-untyped-def]

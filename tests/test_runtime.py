@@ -8,6 +8,7 @@ import re
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -144,6 +145,32 @@ def test_sigusr1_prints_every_threads_stack_and_the_application_goes_on(apps,  #
     hmi.wait_for(r'^  File ".*automotive/bus/app\.py", line \d+ in run$')  # the main thread, in the run loop
     assert hmi.poll() is None  # a dump, not an end
     assert hmi.stop(signal.SIGTERM) == 0
+
+
+# A stop signal that lands while the main thread holds the lock inside the Event that stops it (Event.wait and
+# Event.clear take it many times a second in a run loop): a handler that set the Event there waited for itself for
+# ever. The work is done by the signal thread, which only waits until the main thread lets go.
+STOP_WHILE_THE_LOCK_IS_HELD = """
+import os, signal, sys, threading, time
+from automotive.bus.cli import on_signals
+stopped = threading.Event()
+served_by = []
+on_signals([signal.SIGTERM], lambda signum: (served_by.append(threading.current_thread().name), stopped.set()))
+with stopped._cond:  # what Event.wait and Event.clear hold, for a few bytecodes
+    os.kill(os.getpid(), signal.SIGTERM)
+    deadline = time.monotonic() + 10
+    while not served_by and time.monotonic() < deadline:  # Python keeps running bytecodes: the handler's chance
+        pass
+assert stopped.wait(10), "the stop was lost"
+print("stopped by", served_by[0])
+"""
+
+
+def test_a_stop_signal_while_the_main_thread_holds_the_stop_events_lock_still_stops() -> None:
+    result = subprocess.run([sys.executable, "-c", STOP_WHILE_THE_LOCK_IS_HELD], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "stopped by signals"
 
 
 def test_an_application_says_when_it_sees_no_peer(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]

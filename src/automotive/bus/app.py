@@ -48,6 +48,7 @@ from automotive.bus.cli import (
     add_override_option,
     add_stats_option,
     dump_stacks_on_request,
+    on_signals,
     stop_dumping_stacks,
 )
 from automotive.bus.contentfilter import TopicFilters
@@ -102,6 +103,8 @@ class Application:
         self.props = props
         self.log = log
         self.stop_event = threading.Event()
+        # Set by the main thread's signal handler, which must take no lock (automotive.bus.cli.on_signals).
+        self.stop_signalled = False
         if args.count < 0:
             raise ConfigError(f"--count {args.count}: expected 0 (forever) or a positive number")
         self.count: int = args.count
@@ -186,7 +189,7 @@ class Application:
     # -- run loop ----------------------------------------------------------------------------------------------
     @property
     def running(self) -> bool:
-        return not self.stop_event.is_set()
+        return not self.stop_event.is_set() and not self.stop_signalled
 
     def stop(self) -> None:
         self.stop_event.set()
@@ -294,13 +297,19 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
     start_memory_probe(name)  # a diagnostic, only with AUTOMOTIVE_MEMTRACE set (automotive.bus.memtrace)
     app: Application | None = None
 
-    def on_signal(signum: int, frame: FrameType | None) -> None:
+    def stop_when_built(signum: int, frame: FrameType | None) -> None:
+        # In the main thread, between two bytecodes: lock-free. Before the application exists nothing else stops the
+        # set-up; once it exists, the signal thread stops it (stop_app), and the flag covers a signal that thread
+        # served just before ``app`` was assigned.
+        if app is None:
+            raise KeyboardInterrupt
+        app.stop_signalled = True
+
+    def stop_app(signum: int) -> None:
         if app is not None:
             app.stop()
-        else:
-            raise KeyboardInterrupt
 
-    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    restore_signals = on_signals((signal.SIGINT, signal.SIGTERM), stop_app, stop_when_built)
     try:
         cyclone.start(log)  # the fast paths, once, before any entity; or one line saying why they are off
         app = Application(name, args, load_properties(name, args), log)
@@ -312,8 +321,7 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
     except KeyboardInterrupt:
         return 0
     finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
+        restore_signals()
         if app is not None:
             app.close()
             log.info("stopped")

@@ -6,6 +6,8 @@
   ``add_override_option``, ``add_log_dir_option``, ``add_stats_option``.
 - ``dump_stacks_on_request``: SIGUSR1 prints every thread's Python stack on stderr, so that a process that does not
   stop when asked shows where it waits (the launcher asks before it kills); ``stop_dumping_stacks`` once it ends.
+- ``on_signals``: what a stop signal does (set an Event, wake a WaitSet) runs in a thread of its own, never in the
+  Python signal handler, where it can deadlock.
 
 The standard library only.
 """
@@ -18,14 +20,20 @@ import signal
 import socket
 import sys
 import threading
+from collections.abc import Callable, Iterable
 from pathlib import Path
+from types import FrameType
 from typing import Any, NoReturn
 
 EXIT_BAD_INPUT = 2
 NETWORK_MODES = ("loopback", "lan", "peers")
 MAX_DOMAIN_ID = 232
 DUMP_STACKS_SIGNAL = signal.SIGUSR1
-_stack_dump_thread: threading.Thread | None = None
+_signal_thread: threading.Thread | None = None
+_signal_callbacks: dict[int, list[Callable[[int], None]]] = {}
+_signal_callbacks_lock = threading.Lock()
+
+SignalHandler = Callable[[int, FrameType | None], Any]
 
 
 def dump_stacks_on_request() -> None:
@@ -33,27 +41,74 @@ def dump_stacks_on_request() -> None:
 
     The dump is not made in the signal handler: a Python handler runs only when the main thread is back in Python,
     never while it is stuck in a C call (the case worth diagnosing), and faulthandler's own signal-time dump of all
-    threads reads their frames without the GIL and was seen to crash the process (SIGSEGV). Python's C-level handler
-    writes the signal's number to the wake-up fd at once, whatever the main thread does; a thread waiting there
-    makes the dump holding the GIL, so every frame it reads stays valid.
+    threads reads their frames without the GIL and was seen to crash the process (SIGSEGV). The signal thread
+    (:func:`on_signals`) makes the dump holding the GIL, so every frame it reads stays valid.
     """
-    global _stack_dump_thread
-    signal.signal(DUMP_STACKS_SIGNAL, lambda signum, frame: None)  # a Python handler, so that the byte is written
-    if _stack_dump_thread is not None:  # once a process (a test may run several programs' main in one)
+    signal.signal(DUMP_STACKS_SIGNAL, _ignore_in_main_thread)  # a Python handler, so that the byte is written
+    _start_signal_thread()
+
+
+def on_signals(signals: Iterable[signal.Signals], callback: Callable[[int], None],
+               main_thread_handler: SignalHandler | None = None) -> Callable[[], None]:
+    """Call ``callback(signum)`` from the signal thread each time one of ``signals`` arrives (call it from the main
+    thread); returns the function that unregisters it and gives the signals their previous handlers back.
+
+    Why not in the handler: Python runs a signal handler in the main thread between two bytecodes, possibly while
+    that thread holds the plain (not re-entrant) lock inside the very ``threading.Event`` the handler would set, in
+    ``Event.wait`` or ``Event.clear``: the handler then waits for itself, for ever. Python's C-level handler writes
+    the signal's number to the wake-up fd at once, whatever the main thread does; the signal thread reads it and
+    calls ``callback`` as an ordinary thread, where taking such a lock only waits until the main thread lets go.
+    ``main_thread_handler`` (default: nothing) still runs in the main thread, for what only it can do (raise
+    KeyboardInterrupt before there is anything to stop); it must take no lock.
+    """
+    chosen = list(signals)
+    handler = main_thread_handler or _ignore_in_main_thread
+    previous = {sig: signal.signal(sig, handler) for sig in chosen}  # a Python handler: the byte is written
+    _start_signal_thread()
+    with _signal_callbacks_lock:
+        for sig in chosen:
+            _signal_callbacks.setdefault(int(sig), []).append(callback)
+
+    def restore() -> None:
+        with _signal_callbacks_lock:
+            for sig in chosen:
+                callbacks = _signal_callbacks.get(int(sig), [])
+                if callback in callbacks:
+                    callbacks.remove(callback)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+    return restore
+
+
+def _ignore_in_main_thread(signum: int, frame: FrameType | None) -> None:
+    """The Python handler of a signal whose work the signal thread does."""
+
+
+def _start_signal_thread() -> None:
+    global _signal_thread
+    if _signal_thread is not None:  # once a process (a test may run several programs' main in one)
         return
     reader, writer = socket.socketpair()
     writer.setblocking(False)  # set_wakeup_fd needs it: the C handler must never block
     signal.set_wakeup_fd(writer.fileno(), warn_on_full_buffer=False)
-    _stack_dump_thread = threading.Thread(target=_dump_stacks_when_asked, args=(reader, writer), name="stack-dump",
-                                          daemon=True)
-    _stack_dump_thread.start()
+    _signal_thread = threading.Thread(target=_serve_signals, args=(reader, writer), name="signals", daemon=True)
+    _signal_thread.start()
 
 
-def _dump_stacks_when_asked(reader: socket.socket, writer: socket.socket) -> None:
+def _serve_signals(reader: socket.socket, writer: socket.socket) -> None:
     # ``writer`` is an argument only to stay open (and registered) as long as this thread runs.
     while data := reader.recv(64):
-        if DUMP_STACKS_SIGNAL in data:  # other handled signals (SIGTERM, SIGINT) write their byte here too
-            faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+        for signum in data:
+            if signum == DUMP_STACKS_SIGNAL:
+                faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+            with _signal_callbacks_lock:
+                callbacks = list(_signal_callbacks.get(signum, ()))
+            for callback in callbacks:
+                try:
+                    callback(signum)
+                except Exception as error:  # noqa: BLE001  (this thread serves every later signal too)
+                    print(f"signal {signum}: {error!r}", file=sys.stderr)
 
 
 def stop_dumping_stacks() -> None:

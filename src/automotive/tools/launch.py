@@ -51,7 +51,6 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
 from typing import IO
 
 from automotive import config
@@ -64,6 +63,7 @@ from automotive.bus.cli import (
     add_network_options,
     add_override_option,
     dump_stacks_on_request,
+    on_signals,
     stop_dumping_stacks,
 )
 from automotive.tools import children
@@ -79,6 +79,7 @@ MODES = ("auto", "window", "tmux", "background")
 REDUNDANT_APPS = ("sensor_fusion", "collision_avoidance")
 PRIMARY_STRENGTH, STANDBY_STRENGTH = 20, 10
 STACK_DUMP_WAIT_S = 1.0  # the time given to a hung process to write its threads' stacks before SIGKILL
+SECOND_INTERRUPT_AFTER_S = 0.5  # an interrupt sooner than this after the first is the same one, delivered twice
 # What the launcher may still take after its stop timeout, at worst: the stack dump, 5 s for the killed to end, 2 s
 # per output stream for their last lines. `launch stop` gives it that, and a margin, before it kills the launcher.
 STOP_MARGIN_S = STACK_DUMP_WAIT_S + 5 + 2 * 2 + 5
@@ -419,12 +420,19 @@ class Supervisor:
         self.wake = threading.Event()
         self.stop_requested = False
         self.kill_now = False
+        self.first_interrupt: float | None = None
         self.missing: list[tuple[str, str]] = []
 
-    # signals only set flags; the main loop does the work
-    def on_signal(self, signum: int, frame: FrameType | None) -> None:
-        if self.stop_requested and signum == signal.SIGINT:
-            self.kill_now = True  # a second Ctrl-C: no more waiting
+    # Signals (served by the signal thread, automotive.bus.cli.on_signals) only set flags; the main loop does the work.
+    def on_signal(self, signum: int) -> None:
+        now = time.monotonic()
+        if signum == signal.SIGINT:
+            # A second Ctrl-C: no more waiting. One interrupt delivered twice (a wrapper such as `timeout` sends it
+            # to the launcher and to its process group) comes within milliseconds; a person's second press does not.
+            if self.first_interrupt is not None and now - self.first_interrupt >= SECOND_INTERRUPT_AFTER_S:
+                self.kill_now = True
+            if self.first_interrupt is None:
+                self.first_interrupt = now
         self.stop_requested = True
         self.wake.set()
 
@@ -444,7 +452,8 @@ class Supervisor:
     def start_all(self) -> None:
         env = dict(os.environ)
         # All processes are started before any reader thread exists: the child set-up (parent-death signal) runs
-        # between fork and exec, which is only safe while this process has a single thread.
+        # between fork and exec, which is only safe while no other thread may hold a lock (the signal thread waits
+        # in recv, holding none).
         for spec in self.specs:
             if self.stop_requested:
                 break
@@ -487,7 +496,9 @@ class Supervisor:
         app.ended = time.monotonic()
         app.child.join_output(timeout=2)  # its last lines first
         seconds = app.ended - app.started
-        if app.killed:
+        if app.killed and self.kill_now:
+            app.how = f"killed at once on a second Ctrl-C: {describe_code(code)}"
+        elif app.killed:
             app.how = (f"did not stop within {self.stop_timeout:g} s after SIGTERM: {describe_code(code)} "
                        f"(its threads' stacks are in {app.log_path})")
         elif app.term_sent is not None:
@@ -590,8 +601,7 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
                             "tmux" if args.tmux_session else mode)
     supervisor.missing = missing
     dump_stacks_on_request()
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, supervisor.on_signal)
+    on_signals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), supervisor.on_signal)
     for name, reason in missing:
         console.say(f"{name} is not available in this version ({reason}): not started")
     try:

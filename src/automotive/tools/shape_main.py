@@ -46,7 +46,6 @@ import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from types import FrameType
 from typing import Any, NoReturn
 
 from cyclonedds.core import DDSException, InstanceState, Listener
@@ -58,7 +57,7 @@ from cyclonedds.topic import Topic
 from automotive import config
 from automotive.bus.app import DEFAULT_LIBRARY
 from automotive.bus.checkedreader import CheckedReader
-from automotive.bus.cli import MAX_DOMAIN_ID
+from automotive.bus.cli import MAX_DOMAIN_ID, on_signals
 from automotive.bus.contentfilter import ContentFilter, FilteredReader, FilterError
 from automotive.bus.endpoints import Databus
 from automotive.bus.errors import ConfigError
@@ -639,11 +638,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if options.debug:
         print_debug(options, console)
 
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, on_signal)
+    # stop.set() runs in the signal thread, never in the handler, where it can deadlock (automotive.bus.cli).
+    restore_signals = on_signals((signal.SIGINT, signal.SIGTERM), lambda signum: stop.set())
     application: ShapeApplication | None = None
     try:
         application = ShapeApplication(options, console, stop)
@@ -661,6 +657,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if application is not None:
             application.close()
+        restore_signals()
         ignore_stop_signals()
     console.line("Done.")
     return 0
