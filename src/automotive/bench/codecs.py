@@ -41,16 +41,13 @@ from automotive.bus.endpoints import Databus
 from automotive.bus.network import NetworkConfig
 from automotive.bus.qos import QosProfiles
 from automotive.cyclone import codec_hook, codecgen, fastpath, gate
+from automotive.cyclone.bounds import type_name
 from automotive.cyclone.codecs import codecs
 from automotive.sim.csvdata import load_vision_rows
 from automotive.tools.children import Child, program_command
 from automotive.types.Vision import VisionSensor
 
 PROG = "automotive-bench-codecs"
-
-
-def type_name(cls: type) -> str:
-    return str(getattr(cls, "__idl_typename__", cls.__name__)).replace(".", "::")
 # Sequence lengths of the samples timed (others: 8; strings: 12 characters)
 LENGTHS = {("SensorObjectList", "objects"): 128, ("VisionSensor", "objects"): 10, ("PCloud", "Location"): 1000,
            ("PointCloud2_", "data_"): 184_320, ("PointCloud2_", "fields_"): 4}

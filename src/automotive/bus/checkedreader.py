@@ -34,6 +34,7 @@ from cyclonedds.sub import DataReader, InvalidSample
 from automotive.bus import badsamples, validation
 from automotive.bus.badsamples import BadSample, BadSampleReporter
 from automotive.cyclone import codec_hook, serdata
+from automotive.cyclone.bounds import type_name
 from automotive.cyclone.codecs import codec_for
 
 T = TypeVar("T")
@@ -55,10 +56,6 @@ def set_decoder(data_type: type, decode: Decoder | None) -> None:
 def decoder(data_type: type) -> Decoder:
     """The decoder of a type: the registered one, else Cyclone's ``data_type.deserialize``."""
     return _DECODERS.get(data_type) or data_type.deserialize  # type: ignore[attr-defined]
-
-
-def type_name(data_type: type) -> str:
-    return getattr(data_type, "__idl_typename__", data_type.__name__).replace(".", "::")
 
 
 def undecodable(error: Exception, what: str) -> BadSample:
@@ -140,7 +137,7 @@ class CheckedReader(DataReader[T]):
         fetched = serdata.fetch(self, True, N, condition, instance_handle)
         if fetched is None:  # Cyclone's public take, one sample at a time: one that cannot be decoded is lost alone
             samples: list[Any] = []
-            while len(samples) < N:
+            for _ in range(N):  # at most N takes of one: a take that keeps failing cannot spin for ever
                 batch = self._public(super().take, 1, condition, instance_handle)
                 if batch is None:
                     break
@@ -172,7 +169,12 @@ class CheckedReader(DataReader[T]):
                 continue
             if self._views_decoder is not None:  # the gate is closed: views made from Cyclone's dataclasses
                 info = sample.sample_info
-                sample = self._codec.with_views(sample)
+                try:
+                    sample = self._codec.with_views(sample)
+                except Exception as error:  # a sample the views cannot hold is a bad sample, not a crash
+                    problem = undecodable(error, f"a sample that decodes as {type_name(self.topic.data_type)}")
+                    (self.reporter or badsamples.reporter()).report(self.topic.get_name(), problem, "a writer")
+                    continue
                 sample.sample_info = info
             problem = validation.check(sample)  # type: ignore[assignment]
             if problem is None:

@@ -66,7 +66,8 @@ def member_types(cls: type) -> dict[str, Any]:
 
 
 def type_name(cls: type) -> str:
-    return getattr(cls, "__idl_typename__", cls.__name__).replace(".", "::")
+    """The IDL name of a generated type, as messages and other vendors' tools say it (``Sensor::SensorObjectList``)."""
+    return str(getattr(cls, "__idl_typename__", cls.__name__)).replace(".", "::")
 
 
 @cache

@@ -193,10 +193,6 @@ _original_build_machines: Callable[..., Any] = Builder.build_machines.__func__  
 _original_serialize: Callable[..., bytes] = IDL.serialize
 
 
-def _type_label(cls: type) -> str:
-    return getattr(cls, "__idl_typename__", cls.__name__).replace(".", "::")
-
-
 def _is_octet_sequence(machine: Machine) -> bool:
     # exact class: an OctetSequenceMachine is handled separately, other subclasses are someone else's business
     return (type(machine) is PlainCdrV2SequenceOfPrimitiveMachine and machine.code == "B"  # type: ignore[attr-defined]
@@ -259,7 +255,7 @@ def _member_slots(machine: Machine) -> Iterator[tuple[str, Callable[[], Machine]
 
 def _rewrite_machine(cls: type, machine: Machine, convert: Convert) -> None:
     for name, get, put in _member_slots(machine):
-        label = f"{_type_label(cls)}.{name}"
+        label = f"{bounds.type_name(cls)}.{name}"
         put(_convert(get(), convert, label, bounds.EXTRA_BOUNDS.get((cls, name))))
 
 
@@ -351,7 +347,7 @@ def enabled() -> bool:
 def _member_hint(cls: type, member: str) -> Any:
     hints = get_extended_type_hints(cls)
     if member not in hints:
-        raise KeyError(f"{_type_label(cls)} has no member '{member}' (members: {', '.join(hints)})")
+        raise KeyError(f"{bounds.type_name(cls)} has no member '{member}' (members: {', '.join(hints)})")
     return hints[member]
 
 
@@ -363,7 +359,7 @@ def enforce_bound(cls: type, member: str, bound: int) -> None:
     """
     _member_hint(cls, member)
     if isinstance(bound, bool) or not isinstance(bound, int) or bound <= 0:
-        raise ValueError(f"bound of {_type_label(cls)}.{member}: expected a positive int, got {bound!r}")
+        raise ValueError(f"bound of {bounds.type_name(cls)}.{member}: expected a positive int, got {bound!r}")
     with _lock:
         bounds.set_extra_bound(cls, member, bound)
         if _enabled:

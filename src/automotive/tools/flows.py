@@ -22,6 +22,7 @@ from automotive import config
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import Properties
 from automotive.bus.qos import profile_name
+from automotive.cyclone.bounds import type_name  # re-exported: the name tools and tests use
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.automotive import ShapeType
 from automotive.types.Platform import PlatformControl, PlatformStatus
@@ -77,11 +78,6 @@ class Flow:
     @property
     def schema(self) -> Schema:
         return schema_of(self.data_type)  # type: ignore[arg-type]  # a class is hashable
-
-
-def type_name(data_type: type[Any]) -> str:
-    """A type's name as registered on the wire (``Alerts::DriverAlerts``)."""
-    return str(data_type.__idl__.idl_transformed_typename)
 
 
 @cache

@@ -17,8 +17,9 @@ from cyclonedds.sub import DataReader
 
 from automotive.bus import badsamples, validation
 from automotive.bus.badsamples import BadSample
-from automotive.bus.checkedreader import decoder, type_name, undecodable
+from automotive.bus.checkedreader import decoder, undecodable
 from automotive.bus.contentfilter import Predicate, SeenInstances
+from automotive.cyclone.bounds import type_name
 from automotive.wire.rawsample import Buffer, RawReader, RawSample, SampleKind
 
 

@@ -32,8 +32,9 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
 from automotive.bus import badsamples
-from automotive.bus.checkedreader import WriterNames, type_name, undecodable
+from automotive.bus.checkedreader import WriterNames, undecodable
 from automotive.cyclone import serdata
+from automotive.cyclone.bounds import type_name
 
 ANY_STATE = serdata.ANY_STATE
 Buffer = bytes | bytearray | memoryview
