@@ -106,9 +106,7 @@ def body(app: Application) -> None:
                 app.stats.record("take", topic=vision_topic, src=sample.sample_info.source_timestamp, at=taken_ns,
                                  key=sample.id)
         pending.extend(fresh)
-        if mode == "periodic":
-            if time.monotonic() < next_publish:
-                continue
+        if mode == "periodic":  # its time has come (checked above): the next one
             next_publish = max(next_publish + interval_s, time.monotonic())
         if not pending:
             continue
