@@ -276,17 +276,23 @@ def percentiles(values: list[float]) -> tuple[float, float, float]:
     return p50, p99, max(values)
 
 
+def _two_lines(hop: str) -> str:
+    """A hop's name on two lines under its box: "vision\n-> fusion", "alert\ntotal"."""
+    return hop.replace(" -> ", "\n-> ") if " -> " in hop else hop.replace(" ", "\n", 1)
+
+
 def draw(results: list[Result], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    figure, axes = plt.subplots(1, len(results), figsize=(5 * len(results), 4), squeeze=False)
+    # 7 inches a configuration: the title and the six two-line hop names fit without overlapping.
+    figure, axes = plt.subplots(1, len(results), figsize=(7 * len(results), 4.5), squeeze=False)
     for axis, result in zip(axes[0], results):
         shown = [hop for hop in HOPS if result.hops.get(hop)]
         axis.boxplot([result.hops[hop] for hop in shown], whis=(1, 99), showfliers=True)
-        axis.set_xticks(range(1, len(shown) + 1), [hop.replace(" -> ", "\n-> ") for hop in shown], fontsize=7)
+        axis.set_xticks(range(1, len(shown) + 1), [_two_lines(hop) for hop in shown], fontsize=7)
         axis.set_yscale("log")
         axis.set_ylabel("ms")
         axis.set_title(f"{result.sensors} sensor(s), {result.objects} objects/sample")
