@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 from cyclonedds._clayer import ddspy_read
+from cyclonedds.core import InstanceState
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import InvalidSample
 from dds_helpers import wait_until
@@ -286,6 +287,9 @@ def test_one_bad_sample_never_loses_the_good_ones_of_its_batch(bus: Databus) -> 
         [("GREEN", 10, 20, 30), ("BLUE", 40, 50, 60)]
     invalid = [s for s in taken if isinstance(s, InvalidSample)]
     assert len(invalid) == 1 and invalid[0].key_sample is None  # the disposal still comes through
+    # ... as a sample without data, as Cyclone gives a disposal: consumers test valid_data before they read members
+    assert invalid[0].sample_info.valid_data is False
+    assert invalid[0].sample_info.instance_state == InstanceState.NotAliveDisposed
     assert len(lines.lines) == 2 and report.reported == 2
     assert lines.matching("[Circle] bad sample ignored: undecodable (UnicodeDecodeError: 'utf-8' codec can't decode")
     assert lines.matching("[Circle] bad sample ignored: shapesize = 2000000000 (expected a size of 1..240 pixels)")

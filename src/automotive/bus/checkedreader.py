@@ -10,7 +10,8 @@ serialized samples instead and, for each one:
 2. checks it (automotive.bus.validation: finite floats, well-formed timestamps, the type's semantic rule);
 3. hands it to the application if both passed; otherwise reports it once per kind (automotive.bus.badsamples: topic,
    writer, member, value, what was expected) and leaves it out. A bad sample that also says its instance was disposed
-   or lost its writers still passes that on, as a sample without data (``InvalidSample``), so no state change is lost.
+   or lost its writers still passes that on, as a sample without data (``InvalidSample`` with ``valid_data`` false,
+   as Cyclone gives a disposal), so no state change is lost; its ``key_sample`` is None when not even the key decodes.
 
 Applications keep calling ``reader.take(N=...)`` and filtering ``isinstance(sample, Type)``; a take never raises for
 what a remote writer sent.
@@ -22,12 +23,13 @@ one Python object per element; their float fields are checked in bulk (automotiv
 
 from __future__ import annotations
 
+import dataclasses
 import struct
 from collections.abc import Callable
 from typing import Any, TypeVar
 
 from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsParticipant
-from cyclonedds.core import DDSException, InstanceState
+from cyclonedds.core import InstanceState
 from cyclonedds.qos import Policy
 from cyclonedds.sub import DataReader, InvalidSample
 
@@ -42,6 +44,7 @@ Decoder = Callable[[bytes], Any]
 
 _DECODERS: dict[type, Decoder] = {}
 _WRITER_CACHE = 64  # writer descriptions kept per reader; cleared when full (a writer is looked up again, no more)
+_PARTICIPANT_CACHE = 1024  # participant names kept per reader, the same way
 
 
 def set_decoder(data_type: type, decode: Decoder | None) -> None:
@@ -75,6 +78,7 @@ class WriterNames:
         self.reader = reader
         self._names: dict[int, str] = {}
         self._participants: BuiltinDataReader | None = None
+        self._participant_names: dict[Any, str] = {}  # participant key -> name, from the samples taken so far
 
     def describe(self, handle: int) -> str:
         text = self._names.get(handle)
@@ -87,7 +91,7 @@ class WriterNames:
     def _look_up(self, handle: int) -> str:
         try:
             endpoint = self.reader.get_matched_publication_data(handle)
-        except DDSException:
+        except Exception:  # Cyclone's error, or discovery data it cannot decode (a name that is not UTF-8)
             endpoint = None
         if endpoint is None:
             return f"writer {handle & 0xFFFFFFFFFFFFFFFF:x} (no longer matched)"
@@ -98,15 +102,23 @@ class WriterNames:
         return text + (f" of participant '{participant}'" if participant else "")
 
     def _participant_name(self, key: Any) -> str:
+        # Taken, not read: the built-in reader then holds only what arrived since the last lookup, and participants
+        # that come and go do not pile up in it; the names are kept here, bounded.
         try:
             if self._participants is None:
                 self._participants = BuiltinDataReader(self.reader.participant, BuiltinTopicDcpsParticipant)  # type: ignore[arg-type]
-            for participant in self._participants.read(N=1024):
-                if getattr(participant, "key", None) == key and Policy.EntityName in participant.qos:
-                    return str(participant.qos[Policy.EntityName].name)
-        except DDSException:
+            for participant in self._participants.take(N=256):
+                known = getattr(participant, "key", None)
+                if not participant.sample_info.valid_data:  # a participant that left (only its key): its name goes
+                    self._participant_names.pop(known, None)
+                    continue
+                if known is not None and Policy.EntityName in participant.qos:
+                    if len(self._participant_names) >= _PARTICIPANT_CACHE:  # a bound, should many never leave
+                        self._participant_names.clear()
+                    self._participant_names[known] = str(participant.qos[Policy.EntityName].name)
+        except Exception:  # Cyclone's error, or a participant's discovery data it cannot decode
             pass
-        return ""
+        return self._participant_names.get(key, "")
 
 
 class CheckedReader(DataReader[T]):
@@ -157,8 +169,7 @@ class CheckedReader(DataReader[T]):
         try:
             fetched = fetch(N=count, condition=condition, instance_handle=instance_handle)
         except Exception as error:  # Cyclone's deserializer failed on a sample of the batch: the batch is gone
-            problem = undecodable(error, f"a sample that decodes as {type_name(self.topic.data_type)}")
-            (self.reporter or badsamples.reporter()).report(self.topic.get_name(), problem, "a writer")
+            self._report_undecodable(error)
             return []
         if not fetched:
             return None
@@ -172,17 +183,18 @@ class CheckedReader(DataReader[T]):
                 try:
                     sample = self._codec.with_views(sample)
                 except Exception as error:  # a sample the views cannot hold is a bad sample, not a crash
-                    problem = undecodable(error, f"a sample that decodes as {type_name(self.topic.data_type)}")
-                    (self.reporter or badsamples.reporter()).report(self.topic.get_name(), problem, "a writer")
+                    self._report_undecodable(error, info)
+                    if info.instance_state != InstanceState.Alive:
+                        samples.append(ended_instance(None, info))
                     continue
                 sample.sample_info = info
-            problem = validation.check(sample)  # type: ignore[assignment]
+            problem = validation.check(sample)
             if problem is None:
                 samples.append(sample)
                 continue
             self.report(problem, sample.sample_info)
             if sample.sample_info.instance_state != InstanceState.Alive:
-                samples.append(InvalidSample(sample, sample.sample_info))
+                samples.append(ended_instance(sample, sample.sample_info))
         return samples
 
     def _checked(self, fetched: list[tuple[bytes, Any]]) -> list[Any]:
@@ -197,28 +209,44 @@ class CheckedReader(DataReader[T]):
             try:
                 sample = decode(data)
             except Exception as error:  # whatever a decoder raises for bytes it cannot decode
-                problem: BadSample | None = undecodable(error, f"a sample that decodes as {type_name(data_type)}")
-            else:
-                problem = validation.check(sample)
+                self._report_undecodable(error, info)
+                if info.instance_state != InstanceState.Alive:  # the instance's end is news the application needs
+                    samples.append(ended_instance(self._key(data, info, report=False), info))
+                continue
+            problem = validation.check(sample)
             if problem is None:
                 sample.sample_info = info
                 samples.append(sample)
                 continue
             self.report(problem, info)
-            if info.instance_state != InstanceState.Alive:  # the instance's end is news the application needs
-                samples.append(InvalidSample(sample, info))
+            if info.instance_state != InstanceState.Alive:
+                samples.append(ended_instance(sample, info))
         return samples
 
-    def _key(self, data: bytes, info: Any) -> Any:
+    def _key(self, data: bytes, info: Any, report: bool = True) -> Any:
         """The key of a disposal or unregistration (None, reported, when it cannot be decoded)."""
         data_type = self.topic.data_type
         try:
             return data_type.deserialize_key(data)  # type: ignore[attr-defined]
         except Exception as error:  # as for samples: one bad key never breaks a take
-            self.report(undecodable(error, f"a key that decodes as {type_name(data_type)}"), info)
+            if report:
+                self.report(undecodable(error, f"a key that decodes as {type_name(data_type)}"), info)
             return None
+
+    def _report_undecodable(self, error: Exception, info: Any = None) -> None:
+        problem = undecodable(error, f"a sample that decodes as {type_name(self.topic.data_type)}")
+        if info is None:  # a whole batch failed in Cyclone's take: no sample says which writer
+            (self.reporter or badsamples.reporter()).report(self.topic.get_name(), problem, "a writer")
+        else:
+            self.report(problem, info)
 
     def report(self, problem: BadSample, info: Any, action: str = "ignored") -> None:
         """Report a bad sample of this reader (found by the reader, or by the application: a rule of its own)."""
         reporter = self.reporter or badsamples.reporter()
         reporter.report(self.topic.get_name(), problem, self._writer_names.describe(info.publication_handle), action)
+
+
+def ended_instance(key: Any, info: Any) -> InvalidSample:
+    """The end of an instance whose last sample was bad, as a sample without data: ``valid_data`` false (consumers
+    test it before they read data members), the key (or the bad sample: its key members) when it decoded, else None."""
+    return InvalidSample(key, dataclasses.replace(info, valid_data=False))
