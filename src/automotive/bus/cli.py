@@ -46,6 +46,14 @@ def dump_stacks_on_request() -> None:
     """
     signal.signal(DUMP_STACKS_SIGNAL, _ignore_in_main_thread)  # a Python handler, so that the byte is written
     _start_signal_thread()
+    with _signal_callbacks_lock:  # once, however many programs' main run in this process
+        callbacks = _signal_callbacks.setdefault(int(DUMP_STACKS_SIGNAL), [])
+        if _dump_stacks not in callbacks:
+            callbacks.append(_dump_stacks)
+
+
+def _dump_stacks(signum: int) -> None:
+    faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
 
 
 def on_signals(signals: Iterable[signal.Signals], callback: Callable[[int], None],
@@ -100,8 +108,6 @@ def _serve_signals(reader: socket.socket, writer: socket.socket) -> None:
     # ``writer`` is an argument only to stay open (and registered) as long as this thread runs.
     while data := reader.recv(64):
         for signum in data:
-            if signum == DUMP_STACKS_SIGNAL:
-                faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
             with _signal_callbacks_lock:
                 callbacks = list(_signal_callbacks.get(signum, ()))
             for callback in callbacks:
