@@ -4,22 +4,28 @@ out), and the --filter option / config.filter.<Topic> of the applications (lidar
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import signal
+import struct
 import subprocess
 import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
+from cyclonedds.core import InstanceState
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy
 from dds_helpers import take_samples, wait_until
 from test_bad_input import assert_one_line_error
 
+from automotive.bus.badsamples import BadSample
 from automotive.bus.checkedreader import CheckedReader
-from automotive.bus.contentfilter import ContentFilter, FilteredReader, FilterError
+from automotive.bus.contentfilter import MAX_DEPTH, ContentFilter, FilteredReader, FilterError, evaluate
 from automotive.bus.endpoints import Databus
+from automotive.cyclone.codecs import codec_for
 from automotive.types.automotive import ShapeType
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.shape import ShapeType as SuiteShapeType
@@ -79,11 +85,68 @@ def test_expressions(expression: str, parameters: tuple[str, ...], expected: boo
     ("objects[0].classification > CLASSIFICATION_BIKE", (), True),  # enumerators compare by their values
     ("objects[0].classification = 5", (), True),
     ("objects[0].size[2] > 2.4 AND objects[0].velocity[1] = 0.5", (), True),
-    ("objects[1].classification = CLASSIFICATION_CAR", (), False),  # past the end of the sequence: no match
-    ("NOT objects[1].size[0] > 0", (), True),  # ... and NOT of a predicate that does not match
+    ("objects[1].classification = CLASSIFICATION_CAR", (), False),  # past the end of the sequence: unknown
+    # unknown stays unknown under NOT, as SQL's NULL: neither a comparison past the end nor its NOT matches
+    ("NOT objects[1].size[0] > 0", (), False),
+    ("objects[1].size[0] > 0 OR id = 3", (), True),  # unknown OR true
+    ("objects[1].size[0] > 0 OR id = 4", (), False),
+    ("NOT (objects[1].size[0] > 0 AND id = 4)", (), True),  # unknown AND false is false
+    ("NOT (objects[1].size[0] > 0 OR id = 4)", (), False),  # unknown OR false is unknown
+    ("NOT (objects[1].size[0] > 0 OR id = 3)", (), False),
 ])
 def test_nested_members_arrays_and_enums(expression: str, parameters: tuple[str, ...], expected: bool) -> None:
     assert matches(expression, VISION, parameters) is expected
+    # The same on the sample as CheckedReader.use_views gives it: its objects a numpy structured array
+    views = codec_for(VisionSensor).decode(VisionSensor.serialize(VISION), views=True)
+    assert isinstance(views.objects, np.ndarray)
+    assert ContentFilter.parse(expression, parameters).bind(VisionSensor)(views) is expected
+
+
+def with_classification(value: int) -> VisionSensor:
+    """VISION with its object's classification replaced by any int32, as another vendor's writer may send it:
+    serialized with one enumerator, then the enum's four bytes patched."""
+    car = bytes(VisionSensor.serialize(VISION, use_version_2=False))
+    bike = bytes(VisionSensor.serialize(dataclasses.replace(VISION, objects=[dataclasses.replace(
+        VISION.objects[0], classification=ClassificationEnum.CLASSIFICATION_BIKE)]), use_version_2=False))
+    offset = next(index for index, (a, b) in enumerate(zip(car, bike)) if a != b)
+    offset -= offset % 4
+    patched = car[:offset] + struct.pack("<i", value) + car[offset + 4:]
+    return VisionSensor.deserialize(patched)
+
+
+def test_an_enum_value_outside_the_enum_is_compared_by_its_number() -> None:
+    """Cyclone Python decodes an enumerator the type does not have as a plain int (Cyclone's own writer refuses to
+    send one, another vendor's or a recording need not): the filter compares it, never raises."""
+    odd = with_classification(99)
+    assert odd.objects[0].classification == 99 and not isinstance(odd.objects[0].classification, ClassificationEnum)
+    assert matches("objects[0].classification = CLASSIFICATION_CAR", odd) is False
+    assert matches("objects[0].classification = 99", odd) is True
+    assert matches("objects[0].classification > CLASSIFICATION_CAR", odd) is True
+
+
+def test_a_filter_that_cannot_be_evaluated_gives_a_bad_sample() -> None:
+    class Broken:
+        @property
+        def x(self) -> int:
+            raise RuntimeError("no x here")
+
+    predicate = ContentFilter.parse("x = 1").bind(SuiteShapeType)
+    assert evaluate(predicate, RED) is False
+    assert evaluate(predicate, dataclasses.replace(RED, x=1)) is True
+    verdict = evaluate(predicate, Broken())
+    assert isinstance(verdict, BadSample)
+    assert verdict.value == "the filter cannot be evaluated on it (RuntimeError: no x here)"
+
+
+def test_expressions_too_deep_or_numbers_too_long_are_filter_errors() -> None:
+    within = " OR ".join(f"x = {value}" for value in range(MAX_DEPTH + 1))  # MAX_DEPTH ORs
+    assert matches(within, RED) is True  # x = 10 is among them
+    assert matches("NOT " * (MAX_DEPTH - 1) + "x = 10", RED) is False
+    for expression in (within + " OR x = 1000", "NOT " * 5000 + "x = 1", "x = 1 AND " * 3000 + "x = 1"):
+        with pytest.raises(FilterError, match=rf"nests more than {MAX_DEPTH} conditions deep"):
+            ContentFilter.parse(expression)
+    with pytest.raises(FilterError, match=r"position 5: the number 99999999999999999999\.\.\. has 5000 digits"):
+        ContentFilter.parse("x = " + "9" * 5000).bind(SuiteShapeType)
 
 
 @pytest.mark.parametrize("expression,parameters,position,message", [
@@ -195,6 +258,74 @@ def test_filtered_readers_still_leave_out_bad_samples(bus: Databus, capfd: pytes
     assert raw.bad in (0, 1) and raw.filtered_out == 1
     assert reader.take(N=10) == [] and isinstance(reader, FilteredReader) and reader.filtered_out == 1
 
+
+
+def test_a_disposal_that_comes_with_a_sample_the_filter_leaves_out_still_arrives(bus: Databus) -> None:
+    """RED matched once; then comes a sample that does not match, and the disposal lands on it while it is unread
+    (Cyclone then keeps no sample of its own for the disposal): the end of RED still reaches the application."""
+    predicate = ContentFilter.parse("x < 100").bind(ShapeType)
+    reader = bus.reader("Circle", ShapeType, "Shapes", content_filter=predicate, overrides=RELIABLE_KEEP_ALL)
+    writer = bus.writer("Circle", ShapeType, "Shapes")
+    wait_until(lambda: bool(writer.get_matched_subscriptions()), what="the reader matched")
+    writer.write(circle("RED", 10))
+    assert [sample.color for sample in take_samples(reader, 1)] == ["RED"]
+    writer.write(circle("RED", 200))
+    writer.dispose(circle("RED", 200))
+    writer.write(circle("SENTINEL", 20))  # same writer, in order: once its instance exists, RED's disposal is there
+    # lookup_instance leaves the samples unread (a read would mark them and make Cyclone add a sample of its own)
+    wait_until(lambda: reader.lookup_instance(circle("SENTINEL", 0)) != 0, what="the sentinel's instance")
+    taken = reader.take(N=10)
+    assert [(type(sample).__name__, sample.sample_info.valid_data, sample.sample_info.instance_state)
+            for sample in taken] == [("InvalidSample", False, InstanceState.NotAliveDisposed),
+                                     ("ShapeType", True, InstanceState.Alive)]
+    assert taken[0].key_sample.color == "RED" and taken[1].color == "SENTINEL"
+    assert isinstance(reader, FilteredReader) and reader.filtered_out == 1
+
+
+def test_a_filtered_reader_of_numpy_views(bus: Databus) -> None:
+    """A filter on a reader that gives numpy views (as sensor_fusion's): its elements are numpy records, the enum a
+    plain number, and a member named as a numpy attribute (size) is the member."""
+    predicate = ContentFilter.parse("objects[0].classification = CLASSIFICATION_CAR AND objects[0].size[2] > 2.4"
+                                    ).bind(VisionSensor)
+    reader = bus.reader("VisionTopic", VisionSensor, "Vision", content_filter=predicate, overrides=RELIABLE_KEEP_ALL)
+    assert isinstance(reader, FilteredReader)
+    reader.use_views()
+    raw = FilteredRawReader(bus.reader("VisionTopic", VisionSensor, "Vision", overrides=RELIABLE_KEEP_ALL), predicate)
+    writer = bus.writer("VisionTopic", VisionSensor, "Vision", overrides=RELIABLE_KEEP_ALL)
+    wait_until(lambda: len(writer.get_matched_subscriptions()) == 2, what="both readers matched")
+    writer.write(dataclasses.replace(VISION, id=4, objects=[dataclasses.replace(
+        VISION.objects[0], classification=ClassificationEnum.CLASSIFICATION_BIKE)]))
+    writer.write(dataclasses.replace(VISION, id=5))
+    taken = take_samples(reader, 1)
+    assert [sample.id for sample in taken] == [5]
+    assert isinstance(taken[0].objects, np.ndarray) and taken[0].objects["size"][0, 2] == 2.5
+    assert reader.filtered_out == 1  # the same writer's earlier sample was taken first
+    raw_samples: list[Any] = []
+    wait_until(lambda: bool(raw_samples.extend(raw.take()) or raw.filtered_out == 1), what="the raw reader's samples")
+    assert [VisionSensor.deserialize(bytes(sample.data)).id for sample in raw_samples] == [5]
+    assert raw.bad == 0
+
+
+def test_sensor_fusion_with_a_filter_on_its_vision_views(apps: Any, domain_id: int, bus: Databus) -> None:
+    """sensor_fusion reads the vision objects as numpy views; a --filter on them works (it raised on every take)."""
+    fusion = apps.start("sensor_fusion", "--domain", str(domain_id), "-D", "config.mode=event",
+                        "--filter", "VisionTopic=objects[0].classification = CLASSIFICATION_CAR")
+    writer = bus.writer("VisionTopic", VisionSensor, "Vision")
+    wait_until(lambda: bool(writer.get_matched_subscriptions()), TIMEOUT, "sensor_fusion's reader")
+    first = r"published list \d+: 1 object\(s\) from 1 vision sample\(s\) of sensor\(s\) 7"
+
+    def written() -> bool:  # a reader may not know a writer it matched yet: written until it arrives
+        writer.write(dataclasses.replace(VISION, id=7))
+        return fusion.count(first) > 0
+
+    wait_until(written, TIMEOUT, "the first fused list")
+    writer.write(dataclasses.replace(VISION, id=3, objects=[dataclasses.replace(
+        VISION.objects[0], classification=ClassificationEnum.CLASSIFICATION_BIKE)]))
+    writer.write(dataclasses.replace(VISION, id=8))
+    fusion.wait_for(r"published list \d+: 1 object\(s\) from 1 vision sample\(s\) of sensor\(s\) 8", TIMEOUT)
+    assert fusion.count(r"of sensor\(s\) 3") == 0
+    assert fusion.process.poll() is None, fusion.output[-3000:]
+    assert fusion.stop() == 0 and "Traceback" not in fusion.output, fusion.output[-3000:]
 
 # -- the applications' --filter and config.filter.<Topic> ------------------------------------------------------------
 @pytest.mark.parametrize("app,args,pattern", [

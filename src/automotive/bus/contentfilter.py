@@ -15,7 +15,10 @@ The grammar is the one of DDS 1.4, annex B ("Syntax for Queries and Filters"), w
 Keywords are case-insensitive. A parameter's text is itself a literal (``'RED'``, ``20``, ``CLASSIFICATION_CAR``);
 a text that is none (``RED``) stands for that string, as some vendors pass strings without quotes. ``LIKE`` takes a
 string pattern where ``%`` is any run of characters and ``_`` any one character. A comparison names at least one
-member; two members may be compared with each other. A member indexed past the end of its sequence matches nothing.
+member; two members may be compared with each other. A comparison of a member indexed past the end of its sequence is
+unknown, as SQL's NULL: ``NOT`` keeps it unknown, ``unknown OR true`` is true, ``unknown AND false`` is false, and a
+sample whose whole condition is unknown does not match (so neither ``objects[9].x = 1`` nor its ``NOT`` matches a
+list of two objects). An expression nests at most 200 conditions deep (``a OR b OR ...`` of 200 terms).
 Binding to a type rejects, with the position in the expression, a member the type does not have, a member that is a
 struct or a sequence, and a literal of the wrong kind (``x = 'RED'`` for an int32 x).
 
@@ -24,7 +27,10 @@ and ``read`` return only matching data: the filter sees only samples that decode
 a filtered reader still reports and leaves out bad samples) and automotive.wire.filteredraw.FilteredRawReader
 (serialized samples, decoded and checked only to be tested). Both filter after Cyclone's reader cache, before the
 application sees a sample: a KEEP_LAST history also keeps samples that do not match (DDS filters before the
-history). A disposal or unregistration reaches the application only for instances it has seen data of.
+history). A disposal or unregistration reaches the application only for instances it has seen data of, also when it
+comes with a sample that does not match. A sample the filter cannot be evaluated on (a value no accessor expects from
+another vendor's writer) is reported as a bad sample and left out; it never raises out of ``take``.
+Sequences read as numpy views (``CheckedReader.use_views``) are filtered as well: their elements are numpy records.
 
 The parsing is done by Lark (PyPI ``lark``, a well-kept parsing library) from the grammar below: no library parses
 the DDS filter language itself. Evaluation is ours: the tree compiles to nested Python closures once, so a sample
@@ -42,6 +48,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy
 from cyclonedds.core import InstanceState
 from cyclonedds.idl import IdlEnum, IdlStruct, IdlUnion
 from cyclonedds.idl import types as idl_types
@@ -49,15 +56,19 @@ from cyclonedds.sub import InvalidSample
 from lark import Lark, Token, Tree
 from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
 
-from automotive.bus.checkedreader import CheckedReader
+from automotive.bus.badsamples import BadSample
+from automotive.bus.checkedreader import CheckedReader, ended_instance
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import Properties
 from automotive.cyclone.bounds import member_types
 
-__all__ = ["ContentFilter", "FilterError", "FilteredReader", "Predicate", "SeenInstances", "TopicFilters"]
+__all__ = ["ContentFilter", "FilterError", "FilteredReader", "Predicate", "SeenInstances", "TopicFilters", "evaluate"]
 
 Predicate = Callable[[Any], bool]
+# A condition before the last step of bind(): True, False or None (unknown: a member past the end of its sequence).
+Condition = Callable[[Any], "bool | None"]
 MAX_PARAMETERS = 100
+MAX_DEPTH = 200  # nested conditions; a deeper tree would recurse past Python's limit when bound or evaluated
 
 _GRAMMAR = r"""
 condition: disjunction
@@ -203,7 +214,9 @@ def _accessor(steps: list[str | int]) -> Callable[[Any], Any]:
         value = sample
         for step in steps:
             if isinstance(step, str):
-                value = getattr(value, step)
+                # An element of a numpy view is a record: its fields are items (as attributes, some would be numpy's
+                # own: a record's .size is 1, not the member size).
+                value = value[step] if isinstance(value, numpy.void) else getattr(value, step)
             else:
                 try:
                     value = value[step]
@@ -215,7 +228,14 @@ def _accessor(steps: list[str | int]) -> Callable[[Any], Any]:
 
 
 def _enum_reader(read: Callable[[Any], Any]) -> Callable[[Any], Any]:
-    return lambda sample: read(sample).value
+    """An enum member as its integer value. A value outside the enum (another vendor's writer may send one) decodes
+    as a plain int, and a numpy view holds plain ints: both are their own value."""
+
+    def read_value(sample: Any) -> Any:
+        value = read(sample)
+        return getattr(value, "value", value)
+
+    return read_value
 
 
 class ContentFilter:
@@ -237,6 +257,7 @@ class ContentFilter:
             tree = _parser.parse(expression, start="condition")
         except UnexpectedInput as error:
             raise _syntax_error(expression, error) from None
+        _check_depth(tree)
         used = sorted({int(token[1:]) for token in tree.scan_values(
             lambda t: isinstance(t, Token) and t.type == "PARAMETER")})
         for number in used:
@@ -250,10 +271,24 @@ class ContentFilter:
     def bind(self, data_type: type[Any]) -> Predicate:
         """A predicate for samples of ``data_type``; raises :class:`FilterError` for members the type does not have
         or literals of the wrong kind."""
-        return _Binder(data_type, self.parameters).condition(self.tree.children[0])
+        condition = _Binder(data_type, self.parameters).condition(self.tree.children[0])
+        return lambda sample: condition(sample) is True  # unknown does not match
 
     def __repr__(self) -> str:
         return f"ContentFilter({self.expression!r}, {self.parameters!r})"
+
+
+def _check_depth(tree: Tree[Token]) -> None:
+    """Refuse a tree deeper than MAX_DEPTH conditions; walked with a list, as recursion is what it guards against."""
+    pending: list[tuple[Tree[Token], int]] = [(tree, 0)]
+    while pending:
+        node, depth = pending.pop()
+        if node.data in ("or_", "and_", "not_"):
+            depth += 1
+            if depth > MAX_DEPTH:
+                raise FilterError(f"the expression nests more than {MAX_DEPTH} conditions deep (AND, OR, NOT): "
+                                  "split it or use BETWEEN")
+        pending.extend((child, depth) for child in node.children if isinstance(child, Tree))
 
 
 def _position(token: Token) -> int:
@@ -286,13 +321,17 @@ def _parse_literal(text: str) -> Token | None:
     return token if isinstance(token, Token) else None
 
 
-def _number(text: str) -> int | float:
+def _number(text: str, position: int) -> int | float:
     lowered = text.lower()
-    if "0x" in lowered:
-        return int(lowered, 16)
-    if any(mark in lowered for mark in ".e"):
-        return float(text)
-    return int(text)
+    try:
+        if "0x" in lowered:
+            return int(lowered, 16)
+        if any(mark in lowered for mark in ".e"):
+            return float(text)
+        return int(text)
+    except ValueError:  # Python refuses to convert integers of more than 4,300 digits
+        raise FilterError(f"the number {text[:20]}... has {len(text)} digits: far more than any member holds",
+                          position) from None
 
 
 class _Binder:
@@ -303,19 +342,41 @@ class _Binder:
         self.parameters = parameters
 
     # -- conditions
-    def condition(self, node: Tree[Token] | Token) -> Predicate:
+    def condition(self, node: Tree[Token] | Token) -> Condition:
         if not isinstance(node, Tree):  # pragma: no cover - the grammar makes every condition a tree
             raise FilterError(f"{node!r} is not a condition", _position(node))
         rule = node.data
+        # SQL's three-valued logic: None is unknown (a member past the end of its sequence), see the module's doc.
         if rule == "or_":
             left, right = (self.condition(child) for child in node.children)
-            return lambda sample: left(sample) or right(sample)
+
+            def either(sample: Any) -> bool | None:
+                first = left(sample)
+                if first:
+                    return True
+                second = right(sample)
+                return True if second else None if first is None or second is None else False
+
+            return either
         if rule == "and_":
             left, right = (self.condition(child) for child in node.children)
-            return lambda sample: left(sample) and right(sample)
+
+            def both(sample: Any) -> bool | None:
+                first = left(sample)
+                if first is False:
+                    return False
+                second = right(sample)
+                return False if second is False else None if first is None or second is None else True
+
+            return both
         if rule == "not_":
             inner = self.condition(node.children[0])
-            return lambda sample: not inner(sample)
+
+            def negated(sample: Any) -> bool | None:
+                value = inner(sample)
+                return None if value is None else not value
+
+            return negated
         if rule == "compare":
             return self.compare(node)
         if rule in ("like", "not_like"):
@@ -327,7 +388,7 @@ class _Binder:
         position = _first_position(node)
         raise FilterError("a member alone is not a condition (compare it: member = value)", position)
 
-    def compare(self, node: Tree[Token]) -> Predicate:
+    def compare(self, node: Tree[Token]) -> Condition:
         left_node, relop, right_node = node.children
         left, right = self.operand(left_node), self.operand(right_node)
         op_text = str(relop)
@@ -354,7 +415,7 @@ class _Binder:
             predicate = lambda sample: compare(read_left(sample), constant)  # noqa: E731
         return _guard(predicate) if guarded else predicate
 
-    def like(self, node: Tree[Token], negate: bool) -> Predicate:
+    def like(self, node: Tree[Token], negate: bool) -> Condition:
         subject_node, pattern_node = node.children
         subject, pattern = self.operand(subject_node), self.operand(pattern_node)
         if not subject.is_member or subject.member is None or subject.member.kind is not Kind.STRING:
@@ -369,7 +430,7 @@ class _Binder:
             return _guard(lambda sample: regex.fullmatch(read(sample)) is None)
         return _guard(lambda sample: regex.fullmatch(read(sample)) is not None)
 
-    def between(self, node: Tree[Token], negate: bool) -> Predicate:
+    def between(self, node: Tree[Token], negate: bool) -> Condition:
         subject_node, low_node, high_node = node.children
         subject, low, high = (self.operand(child) for child in (subject_node, low_node, high_node))
         if not subject.is_member:
@@ -403,7 +464,7 @@ class _Binder:
     def constant(self, token: Token, position: int) -> _Operand:
         text = str(token)
         if token.type == "NUMBER":
-            return _Operand(position, text, value=_number(text), kind=Kind.NUMBER)
+            return _Operand(position, text, value=_number(text, position), kind=Kind.NUMBER)
         if token.type == "STRING":
             return _Operand(position, text, value=text[1:-1], kind=Kind.STRING)
         if token.type in ("TRUE", "FALSE"):
@@ -497,21 +558,35 @@ def _member_text(steps: list[str | int]) -> str:
 
 
 def _first_position(node: Tree[Token]) -> int:
-    for token in node.scan_values(lambda value: isinstance(value, Token)):
-        return _position(token)
+    """The position of the node's first token: its leftmost leaf (a loop: the tree may be deep)."""
+    while node.children:
+        first = node.children[0]
+        if isinstance(first, Token):
+            return _position(first)
+        node = first
     return 0  # pragma: no cover - every member has a name
 
 
-def _guard(predicate: Predicate) -> Predicate:
-    """A predicate that is false for a member indexed past the end of its sequence (or a None string)."""
+def _guard(predicate: Predicate) -> Condition:
+    """A condition that is unknown (None) for a member indexed past the end of its sequence (or a None string)."""
 
-    def guarded(sample: Any) -> bool:
+    def guarded(sample: Any) -> bool | None:
         try:
-            return predicate(sample)
+            return bool(predicate(sample))  # a numpy view's values compare to numpy booleans: made Python's
         except (_Missing, TypeError):
-            return False
+            return None
 
     return guarded
+
+
+def evaluate(predicate: Predicate, sample: Any) -> bool | BadSample:
+    """Whether ``sample`` matches; a :class:`BadSample` when the filter cannot be evaluated on it at all (a value of
+    a kind no member of the type holds), which the reader reports and leaves out: a filter never ends a take."""
+    try:
+        return bool(predicate(sample))
+    except Exception as error:  # whatever an accessor or comparison raises on another system's odd value
+        return BadSample("", f"the filter cannot be evaluated on it ({type(error).__name__}: {error})",
+                         "a sample the content filter can test")
 
 
 # -- readers -----------------------------------------------------------------------------------------------------------
@@ -524,11 +599,16 @@ class SeenInstances:
     def __init__(self) -> None:
         self.handles: set[int] = set()
 
-    def data(self, instance: int, passed: bool, instance_state: int) -> None:
+    def data(self, instance: int, passed: bool, instance_state: int) -> bool:
+        """Note a sample of data; True when it did not pass but says that an instance the application has seen
+        ended: that end must reach the application, without the data."""
+        if instance_state in _GONE:
+            seen = instance in self.handles
+            self.handles.discard(instance)
+            return seen and not passed
         if passed:
             self.handles.add(instance)
-        if instance_state in _GONE:
-            self.handles.discard(instance)
+        return False
 
     def state_change(self, instance: int) -> bool:
         """True when the application has seen data of ``instance`` (which is then forgotten)."""
@@ -542,10 +622,14 @@ class FilteredReader(CheckedReader[Any]):
     """A :class:`CheckedReader` whose ``take`` and ``read`` return only the samples that match its filter.
 
     The checked take comes first: samples that do not decode or fail their type's checks are reported and left out
-    before the filter sees them. A call returns up to ``N`` matching samples, fewer only when no more are available
-    (it takes again while whole batches went by without enough matches). Samples that do not match are taken (or
-    read) and dropped.
+    before the filter sees them. A call returns up to ``N`` matching samples, fewer when no more are available (it
+    takes again while whole batches went by without enough matches, until it has looked at MAX_EXAMINED samples: a
+    writer faster than the reader never keeps one call going). Samples that do not match are taken (or read) and
+    dropped; when such a sample also says that an instance the application has seen ended, that end is passed on as a
+    sample without data.
     """
+
+    MAX_EXAMINED = 4096
 
     def __init__(self, *args: Any, content_filter: Predicate, **kwargs: Any):
         super().__init__(*args, **kwargs)
@@ -560,23 +644,29 @@ class FilteredReader(CheckedReader[Any]):
             # An InvalidSample here may carry valid_data: a bad sample whose instance ended (CheckedReader passes
             # the end on); it is a state change.
             if info.valid_data and not isinstance(sample, InvalidSample):
-                passed = bool(self.content_filter(sample))
-                self._seen.data(info.instance_handle, passed, info.instance_state)
-                if passed:
-                    kept.append(sample)
+                verdict = evaluate(self.content_filter, sample)
+                if isinstance(verdict, BadSample):
+                    self.report(verdict, info)
+                    verdict = False
                 else:
-                    self.filtered_out += 1
+                    self.filtered_out += not verdict
+                if self._seen.data(info.instance_handle, verdict, info.instance_state):
+                    kept.append(ended_instance(sample, info))
+                elif verdict:
+                    kept.append(sample)
             elif self._seen.state_change(info.instance_handle):
                 kept.append(sample)
         return kept
 
     def take(self, N: int = 1, condition: Any = None, instance_handle: int | None = None) -> list[Any]:
         kept: list[Any] = []
+        examined = 0
         while True:
             wanted = N - len(kept)
             batch = super().take(wanted, condition, instance_handle)
             kept.extend(self._keep(batch))
-            if len(batch) < wanted or len(kept) >= N:
+            examined += len(batch)
+            if len(batch) < wanted or len(kept) >= N or examined >= max(N, self.MAX_EXAMINED):
                 return kept
 
     def read(self, N: int = 1, condition: Any = None, instance_handle: int | None = None) -> list[Any]:

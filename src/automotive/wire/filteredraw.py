@@ -18,7 +18,7 @@ from cyclonedds.sub import DataReader
 from automotive.bus import badsamples, validation
 from automotive.bus.badsamples import BadSample
 from automotive.bus.checkedreader import decoder, undecodable
-from automotive.bus.contentfilter import Predicate, SeenInstances
+from automotive.bus.contentfilter import Predicate, SeenInstances, evaluate
 from automotive.cyclone.bounds import type_name
 from automotive.wire.rawsample import Buffer, RawReader, RawSample, SampleKind
 
@@ -38,12 +38,11 @@ class FilteredRawReader(RawReader):
         for sample in super()._samples(data, info, whole_key_sample):
             if sample.kind is SampleKind.DATA:
                 decoded = self._decoded(sample)
-                passed = decoded is not None and bool(self.content_filter(decoded))
+                passed = decoded is not None and self._matches(sample, decoded)
+                # A raw reader receives an instance's end as a sample of its own (below), never on a data sample.
                 self._seen.data(sample.instance, passed, InstanceState.Alive)
                 if passed:
                     kept.append(sample)
-                elif decoded is not None:
-                    self.filtered_out += 1
             elif self._seen.state_change(sample.instance):
                 kept.append(sample)
         return kept
@@ -59,10 +58,21 @@ class FilteredRawReader(RawReader):
             problem = validation.check(decoded)
         if problem is None:
             return decoded
+        self._report(sample, problem)
+        return None
+
+    def _matches(self, sample: RawSample, decoded: Any) -> bool:
+        verdict = evaluate(self.content_filter, decoded)
+        if isinstance(verdict, BadSample):
+            self._report(sample, verdict)
+            return False
+        self.filtered_out += not verdict
+        return verdict
+
+    def _report(self, sample: RawSample, problem: BadSample) -> None:
         self.bad += 1
         reporter = getattr(self.reader, "reporter", None) or badsamples.reporter()
         reporter.report(self.reader.topic.get_name(), problem, self._writer_names.describe(sample.writer))
-        return None
 
 
 def filtered_raw_reader(reader: DataReader[Any], content_filter: Predicate | None,
