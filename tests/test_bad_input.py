@@ -77,6 +77,20 @@ def test_bad_properties(apps, app: str, args: list[str], pattern: str) -> None: 
     assert_one_line_error(apps.run(app, *args), rf"^{app}: .*{pattern}")
 
 
+
+@pytest.mark.parametrize("app,args,pattern", [
+    ("hmi", ["-D", "topic.Alerts=no spaces allowed"],
+     r"topic 'no spaces allowed': Cyclone refused it \(\[DDS_RETCODE_BAD_PARAMETER\]"),
+    ("shape_main", ["-S", "-t", "no spaces"], r"topic 'no spaces': Cyclone refused it \(\[DDS_RETCODE_BAD_PARAMETER\]"),
+    ("shape_main", ["-S", "-t", "Square", "-f", "10", "--time-filter", "100"],  # a deadline under the time filter
+     r"the reader of Square with these QoS options: Cyclone refused it \(\[DDS_RETCODE_INCONSISTENT_POLICY\]"),
+])
+def test_entities_cyclone_refuses_end_with_one_line(apps, domain_id: int, app: str, args: list[str],  # type: ignore[no-untyped-def]
+                                                    pattern: str) -> None:
+    domain = ["-d", str(domain_id)] if app == "shape_main" else ["--domain", str(domain_id)]
+    prog = "automotive-shape-main" if app == "shape_main" else app
+    assert_one_line_error(apps.run(app, *domain, *args), rf"^{prog}: {pattern}")
+
 # The commands the README and docs/ print, started as printed: scripts/launch through its shebang with whatever the
 # PATH has (not the project's .venv: it installs what is needed and runs the launcher of .venv), and the console
 # scripts of .venv/bin (the benchmarks; the launcher's own).

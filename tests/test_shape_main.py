@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -19,10 +20,18 @@ from pathlib import Path
 
 import pytest
 from apprunner import AppRunner
+from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Policy, Qos
+from dds_helpers import wait_until
 from fastdds_peer import shape_peer
 from shape_cases import FASTDDS_PAIRS, OURS_TO_FASTDDS, SELF_CASES, Case, CaseRun, Implementation, describe
 
+from automotive.bus.endpoints import Databus
+from automotive.bus.qos import WRITER_REPRESENTATION
 from automotive.tools import netlab
+from automotive.tools.shape_main import parse_options
+from automotive.types.shape import ShapeType as SuiteShapeType
+from automotive.wire.rawsample import RawWriter
 
 ROOT = Path(__file__).resolve().parent.parent
 OURS = Implementation("ours", [sys.executable, "-m", "automotive.tools.shape_main"])
@@ -115,3 +124,33 @@ def test_sigint_while_ending_keeps_the_exit_code(domain_id: int) -> None:
                 pass
         process.stdout.read()
     assert process.returncode == 2
+
+
+@pytest.mark.parametrize("args,reliable", [([], True), (["-b"], False), (["-r", "-b"], False), (["-b", "-r"], True)])
+def test_the_last_of_b_and_r_wins(args: list[str], reliable: bool) -> None:
+    assert parse_options(["-S", "-t", "Square", *args]).reliable is reliable
+
+
+def test_a_bad_colour_whose_instance_then_ends_is_reported_and_the_subscriber_goes_on(apps, domain_id: int,  # type: ignore[no-untyped-def]
+                                                                                       bus: Databus) -> None:
+    """Another system writes a colour that is not UTF-8 and disposes that instance: the subscriber reports the bad
+    sample, prints the instance's end with '?' for the colour it cannot decode, and goes on (it ended on this)."""
+    subscriber = apps.start("shape_main", "-S", "-t", "Square", "-d", str(domain_id))
+    writer: DataWriter[SuiteShapeType] = DataWriter(bus.participant, bus.topic("Square", SuiteShapeType),
+                                                    qos=Qos(Policy.Reliability.Reliable(0), WRITER_REPRESENTATION))
+    wait_until(lambda: bool(writer.get_matched_subscriptions()), 60, "the subscriber's reader")
+    raw = RawWriter(writer)
+    bad = bytes(SuiteShapeType(color="BAD", x=1, y=2, shapesize=3, additional_payload_size=b"").serialize(
+        use_version_2=False)).replace(b"BAD\0", b"\xff\xfe\xfd\0")
+
+    def ended() -> bool:  # written again until seen: the reader may not know the writer it matched yet
+        raw.write(bad)
+        raw.dispose(bad)
+        return subscriber.count(r"^Square +\? +NOT_ALIVE_DISPOSED_INSTANCE_STATE") > 0
+
+    wait_until(ended, 60, "the bad instance's end")
+    subscriber.wait_for(r"\[Square\] bad sample ignored: undecodable \(UnicodeDecodeError", 60)
+    writer.write(SuiteShapeType(color="GREEN", x=10, y=20, shapesize=30, additional_payload_size=b""))
+    subscriber.wait_for(r"^Square +GREEN +010 020 \[30\]", 60)
+    assert subscriber.stop(signal.SIGINT) == 0, subscriber.output[-3000:]
+    assert "Traceback" not in subscriber.output, subscriber.output[-3000:]

@@ -22,7 +22,7 @@ from automotive.bus import badsamples, memtune
 from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.contentfilter import FilteredReader, Predicate
-from automotive.bus.errors import ConfigError
+from automotive.bus.errors import ConfigError, refused_as_config_error
 from automotive.bus.network import NetworkConfig, user_uri
 from automotive.bus.qos import QosProfiles
 from automotive.bus.stats import Stats
@@ -84,7 +84,8 @@ class Databus:
     def topic(self, name: str, data_type: type[T]) -> Topic[T]:  # type: ignore[type-var]
         topic = self._topics.get(name)
         if topic is None:
-            topic = Topic(self.participant, name, data_type)  # type: ignore[type-var]  # generated types: unchecked
+            with refused_as_config_error(f"topic '{name}'"):
+                topic = Topic(self.participant, name, data_type)  # type: ignore[type-var]  # generated: unchecked
             self._topics[name] = topic
         elif topic.data_type is not data_type:
             raise ConfigError(f"topic '{name}' is used with two types: {topic.data_type.__name__} "
@@ -109,7 +110,8 @@ class Databus:
             # The entity name travels with the writer's discovery data: readers name the owner they follow.
             qos = DataWriterQos(Policy.OwnershipStrength(strength), Policy.EntityName(self.name), base=qos)
         topic = self.topic(topic_name, data_type)
-        writer = CheckedWriter(self.publisher, topic, qos=qos, listener=self._listener(topic_name, hook))
+        with refused_as_config_error(f"the writer of topic '{topic_name}' with QoS profile '{profile}'"):
+            writer = CheckedWriter(self.publisher, topic, qos=qos, listener=self._listener(topic_name, hook))
         self._endpoints.append(writer)
         return writer
 
@@ -125,11 +127,12 @@ class Databus:
         exclusive = Policy.Ownership.Exclusive in qos
         listener = self._listener(topic_name, hook, exclusive)
         reader: DataReader[T]
-        if content_filter is None:
-            reader = CheckedReader(self.subscriber, topic, qos=qos, listener=listener, reporter=self.reporter)
-        else:
-            reader = FilteredReader(self.subscriber, topic, qos=qos, listener=listener, reporter=self.reporter,
-                                    content_filter=content_filter)
+        with refused_as_config_error(f"the reader of topic '{topic_name}' with QoS profile '{profile}'"):
+            if content_filter is None:
+                reader = CheckedReader(self.subscriber, topic, qos=qos, listener=listener, reporter=self.reporter)
+            else:
+                reader = FilteredReader(self.subscriber, topic, qos=qos, listener=listener, reporter=self.reporter,
+                                        content_filter=content_filter)
         self._endpoints.append(reader)
         return reader
 

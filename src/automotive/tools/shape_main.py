@@ -60,7 +60,7 @@ from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.cli import MAX_DOMAIN_ID, on_signals
 from automotive.bus.contentfilter import ContentFilter, FilteredReader, FilterError
 from automotive.bus.endpoints import Databus
-from automotive.bus.errors import ConfigError
+from automotive.bus.errors import ConfigError, refused_as_config_error
 from automotive.bus.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, user_uri
 from automotive.bus.qos import QosProfiles
 from automotive.bus.status import policy_name
@@ -75,6 +75,8 @@ MS = 1_000_000  # nanoseconds
 MAX_BLOCKING_NS = 100 * MS  # the DDS default max_blocking_time of a reliable writer
 ACK_WAIT_NS = 1000 * MS  # at the end a writer waits at most this long for its readers to acknowledge
 TAKE_BATCH = 1000
+MAX_TAKES_PER_PERIOD = 10
+UNKNOWN_COLOR = "?"  # printed for an instance whose key could not be decoded
 # A reader that joins a running Fast DDS writer gets its heartbeat only every 3 s; Cyclone keeps 128 samples until
 # then and drops the rest (seen: 100 of 4 instances written every 33 ms lost). 512 covers 4 instances at 30 Hz.
 REORDER_SAMPLES = 512
@@ -203,8 +205,11 @@ def _integer(option: str, value: str, minimum: int | None = None) -> int:
 
 def parse_options(argv: Sequence[str]) -> ShapeOptions:
     parser = _Parser(prog=PROG, add_help=False, allow_abbrev=False)
-    for flag in ("-h", "--help", "-P", "-S", "-b", "-r", "-w", "-R", "--coherent", "--ordered", "--take-read"):
+    for flag in ("-h", "--help", "-P", "-S", "-w", "-R", "--coherent", "--ordered", "--take-read"):
         parser.add_argument(flag, action="store_true", dest=flag.lstrip("-").replace("-", "_"))
+    # -b and -r set one value: the last one given wins, as in the reference.
+    parser.add_argument("-b", action="store_const", const=False, dest="reliable", default=True)
+    parser.add_argument("-r", action="store_const", const=True, dest="reliable")
     for option in ("-v", "-d", "-k", "-f", "-s", "-t", "-c", "-p", "-D", "-x", "-z", "--write-period",
                    "--read-period", "--time-filter", "--lifespan", "--num-iterations", "--num-instances",
                    "--num-topics", "--final-instance-state", "--access-scope", "--coherent-sample-count",
@@ -216,11 +221,8 @@ def parse_options(argv: Sequence[str]) -> ShapeOptions:
         print(USAGE, end="")
         sys.exit(0)
     o = ShapeOptions(publish=args.P, subscribe=args.S, print_writer_samples=args.w, use_read=args.R,
-                     coherent=args.coherent, ordered=args.ordered, take_next_instance=not args.take_read)
-    if args.b:
-        o.reliable = False
-    if args.r:
-        o.reliable = True
+                     coherent=args.coherent, ordered=args.ordered, take_next_instance=not args.take_read,
+                     reliable=args.reliable)
     value = vars(args)
 
     def get(option: str) -> str | None:
@@ -479,11 +481,13 @@ class ShapeApplication:
     # -- publisher
     def run_publisher(self) -> None:
         o = self.o
-        publisher = Publisher(self.bus.participant, qos=group_qos(o))
+        with refused_as_config_error("the publisher (-p)"):
+            publisher = Publisher(self.bus.participant, qos=group_qos(o))
         qos = writer_qos(o)
         for topic in self.topics:
             self.console.line(f"Create writer for topic: {topic.name} color: {o.color}")
-            self.writers.append(DataWriter(publisher, topic, qos=qos, listener=self._listener(topic.name)))
+            with refused_as_config_error(f"the writer of {topic.name} with these QoS options"):
+                self.writers.append(DataWriter(publisher, topic, qos=qos, listener=self._listener(topic.name)))
         rng = random.Random()
         assert o.color is not None
         shape = MovingShape(o.color, max(o.shapesize, 1), rng.randint(1, 5), rng)
@@ -530,7 +534,8 @@ class ShapeApplication:
     # -- subscriber
     def run_subscriber(self) -> None:
         o = self.o
-        subscriber = Subscriber(self.bus.participant, qos=group_qos(o))
+        with refused_as_config_error("the subscriber (-p)"):
+            subscriber = Subscriber(self.bus.participant, qos=group_qos(o))
         qos = reader_qos(o)
         content_filter = None
         if o.cft is not None or o.color is not None:
@@ -548,11 +553,12 @@ class ShapeApplication:
             listener = self._listener(topic.name)
             # Checked readers: a sample that does not decode or fails its checks is reported and left out (the
             # filter sees only the others).
-            if content_filter is not None:
-                self.readers.append(FilteredReader(subscriber, topic, qos=qos, listener=listener,
-                                                   content_filter=content_filter))
-            else:
-                self.readers.append(CheckedReader(subscriber, topic, qos=qos, listener=listener))
+            with refused_as_config_error(f"the reader of {name} with these QoS options"):
+                if content_filter is not None:
+                    self.readers.append(FilteredReader(subscriber, topic, qos=qos, listener=listener,
+                                                       content_filter=content_filter))
+                else:
+                    self.readers.append(CheckedReader(subscriber, topic, qos=qos, listener=listener))
         iteration = 0
         next_read = time.monotonic() + o.read_period_ms / 1000
         while not self.stop.is_set():
@@ -568,10 +574,10 @@ class ShapeApplication:
     def print_samples(self, reader: DataReader[ShapeType]) -> None:
         get = reader.read if self.o.use_read else reader.take
         samples: list[Any] = []
-        while True:
+        for _ in range(MAX_TAKES_PER_PERIOD):  # bounded: a writer faster than this loop never keeps it here
             batch = get(N=TAKE_BATCH)
             samples.extend(batch)
-            if len(batch) < TAKE_BATCH or self.o.use_read:
+            if len(batch) < TAKE_BATCH or self.o.use_read or self.stop.is_set():
                 break
         if self.o.take_next_instance:  # take/read_next_instance: instance by instance, in handle order
             samples.sort(key=lambda sample: _unsigned(sample.sample_info.instance_handle))
@@ -584,9 +590,11 @@ class ShapeApplication:
             if info.instance_state == InstanceState.Alive:
                 continue
             key = sample if info.valid_data else sample.key_sample
+            # The key of an instance whose last sample was bad may not decode either (a colour that is not UTF-8).
+            color = getattr(key, "color", None) or UNKNOWN_COLOR
             state = "NOT_ALIVE_DISPOSED_INSTANCE_STATE" if info.instance_state == InstanceState.NotAliveDisposed \
                 else "NOT_ALIVE_NO_WRITERS_INSTANCE_STATE"
-            self.console.line(f"{topic:<10} {key.color:<10} {state}")
+            self.console.line(f"{topic:<10} {color:<10} {state}")
 
     def close(self) -> None:
         for endpoint in [*self.writers, *self.readers]:
