@@ -225,6 +225,19 @@ def test_list_names_all_eight_applications() -> None:
     assert [line.split()[0] for line in result.stdout.splitlines()] == list(APPS)
 
 
+
+def test_list_into_a_pipe_nobody_reads_ends_quietly() -> None:
+    """``automotive-launch --list | head -1``: the reader is gone before the list is written (its end closed first,
+    so the write fails every time): exit code 0, no traceback."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        result = subprocess.run([*LAUNCH, "--list"], stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=20)
+    finally:
+        os.close(write_end)
+    assert result.returncode == 0 and result.stderr == "", result.stderr
+
+
 def test_stop_without_a_launcher_says_so(tmp_path: Path) -> None:
     result = subprocess.run([*LAUNCH, "stop", "--log-dir", str(tmp_path)], capture_output=True,
                             text=True, timeout=20)

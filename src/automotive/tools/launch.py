@@ -48,7 +48,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -772,6 +772,19 @@ def list_command() -> int:
     return 0
 
 
+def printing(command: Callable[[], int]) -> int:
+    """Run a command that only prints; a reader that leaves early (``--list | head -1``) ends it quietly. Only for
+    such commands: the launcher itself must go on stopping its applications whatever happens to its output."""
+    try:
+        code = command()
+        sys.stdout.flush()
+        return code
+    except BrokenPipeError:
+        # Python would report the pipe again when it flushes stdout at exit: point stdout at /dev/null first.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
 # -- entry ----------------------------------------------------------------------------------------------------------
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
@@ -830,10 +843,10 @@ def _main(argv: list[str]) -> int:
     if argv[:1] == ["stop"]:
         return stop_command(argv[1:])
     if argv[:1] == ["status"]:
-        return status_command(argv[1:])
+        return printing(lambda: status_command(argv[1:]))
     args = build_parser().parse_intermixed_args(argv)
     if args.list:
-        return list_command()
+        return printing(list_command)
     specs, missing = plan(args)
     if not specs:
         reasons = "; ".join(f"{name}: {reason}" for name, reason in missing)
