@@ -173,6 +173,33 @@ def test_a_stop_signal_while_the_main_thread_holds_the_stop_events_lock_still_st
     assert result.stdout.strip() == "stopped by signals"
 
 
+# A second stop signal while the application closes (``timeout -s INT`` signals the process and its group: two) is
+# served like the first; Python's default handler, given back too early, raised KeyboardInterrupt in the close.
+SIGNAL_DURING_CLOSE = """
+import os, signal, sys, time
+from automotive.bus import app as app_module
+close = app_module.Application.close
+
+def close_after_a_signal(self):
+    os.kill(os.getpid(), signal.SIGINT)
+    deadline = time.monotonic() + 0.5
+    while time.monotonic() < deadline:  # bytecodes: the main-thread handler runs here
+        pass
+    close(self)
+
+app_module.Application.close = close_after_a_signal
+code = app_module.run("hmi", "test", lambda app: None, ["--domain", sys.argv[1]])
+print("exit code", code)
+"""
+
+
+def test_a_stop_signal_while_the_application_closes_does_not_cut_the_close(domain_id: int) -> None:
+    result = subprocess.run([sys.executable, "-c", SIGNAL_DURING_CLOSE, str(domain_id)], capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 0 and "Traceback" not in result.stderr, result.stderr
+    assert result.stdout.strip().endswith("exit code 0"), result.stdout
+
+
 def test_an_application_says_when_it_sees_no_peer(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
     hmi = apps.start("hmi", "--ui", "console", "--domain", str(domain_id), "-D", "config.matchReport=1")
     hmi.wait_for(r"\[AlertTopic\] reader: no writer matched after 1 s")

@@ -321,8 +321,8 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
     except KeyboardInterrupt:
         return 0
     finally:
-        restore_signals()
         if app is not None:
-            app.close()
+            app.close()  # with our handlers still in place: a second signal (timeout -s INT sends two) cannot cut it
             log.info("stopped")
+        restore_signals()
         stop_dumping_stacks()
