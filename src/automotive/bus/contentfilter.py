@@ -52,7 +52,6 @@ import numpy
 from cyclonedds.core import InstanceState
 from cyclonedds.idl import IdlEnum, IdlStruct, IdlUnion
 from cyclonedds.idl import types as idl_types
-from cyclonedds.sub import InvalidSample
 from lark import Lark, Token, Tree
 from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
 
@@ -641,9 +640,7 @@ class FilteredReader(CheckedReader[Any]):
         kept = []
         for sample in samples:
             info = sample.sample_info
-            # An InvalidSample here may carry valid_data: a bad sample whose instance ended (CheckedReader passes
-            # the end on); it is a state change.
-            if info.valid_data and not isinstance(sample, InvalidSample):
+            if info.valid_data:  # (the end of an instance whose last sample was bad comes without data)
                 verdict = evaluate(self.content_filter, sample)
                 if isinstance(verdict, BadSample):
                     self.report(verdict, info)
