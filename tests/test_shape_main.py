@@ -154,3 +154,22 @@ def test_a_bad_colour_whose_instance_then_ends_is_reported_and_the_subscriber_go
     subscriber.wait_for(r"^Square +GREEN +010 020 \[30\]", 60)
     assert subscriber.stop(signal.SIGINT) == 0, subscriber.output[-3000:]
     assert "Traceback" not in subscriber.output, subscriber.output[-3000:]
+
+
+def test_a_write_that_times_out_is_not_the_end_of_the_publisher(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
+    """KEEP_ALL, reliable, 100 kB samples and a reader that does not acknowledge (its process stopped): the writer's
+    history fills and write gives up after max_blocking_time. The reference ignores that and writes the next sample;
+    ours ended on the DDSException instead (seen once in the suite's LargeData_0, loaded machine)."""
+    subscriber = apps.start("shape_main", "-S", "-t", "Square", "-r", "-k", "0", "-d", str(domain_id))
+    publisher = apps.start("shape_main", "-P", "-t", "Square", "-r", "-k", "0", "--additional-payload-size",
+                           "100000", "-d", str(domain_id))
+    subscriber.wait_for(r"^Square +BLUE +\d{3} \d{3} \[\d+\] \{255\}", 60)
+    with subscriber.frozen():  # SIGSTOP: no more acknowledgements
+        publisher.wait_for(r"automotive-shape-main: write of BLUE on Square not done \(DDS_RETCODE_TIMEOUT\)", 60)
+        assert publisher.poll() is None, publisher.output[-3000:]
+    seen = subscriber.count(r"\{255\}")
+    subscriber.wait_for_more(r"^Square +BLUE +\d{3} \d{3} \[\d+\] \{255\}", 1, 60)  # it writes on
+    assert subscriber.count(r"\{255\}") > seen
+    for process in (publisher, subscriber):
+        assert process.stop(signal.SIGINT) == 0, process.output[-3000:]
+        assert "Traceback" not in process.output, process.output[-3000:]

@@ -451,6 +451,8 @@ class ShapeApplication:
         self.listeners: list[ShapeListener] = []
         self.writers: list[DataWriter[ShapeType]] = []
         self.readers: list[DataReader[ShapeType]] = []
+        self.writes_not_done = 0
+        self.write_warned_at = -float("inf")
         log = logging.getLogger(PROG)
         log.addHandler(logging.StreamHandler(sys.stderr))
         self.bus = Databus(o.domain_id, QosProfiles(config.qos_file()), DEFAULT_LIBRARY, log, self._network(),
@@ -502,8 +504,12 @@ class ShapeApplication:
                 shape.size = shape.size % o.size_modulo + 1 if o.size_modulo > 0 else shape.size + 1
             for writer in self.writers:
                 for color in colors:
-                    writer.write(ShapeType(color=color, x=shape.x, y=shape.y, shapesize=shape.size,
-                                           additional_payload_size=payload))
+                    try:
+                        writer.write(ShapeType(color=color, x=shape.x, y=shape.y, shapesize=shape.size,
+                                               additional_payload_size=payload))
+                    except DDSException as error:
+                        self.write_not_done(writer.topic.name, color, error)
+                        continue
                     if o.print_writer_samples:
                         self.console.line(sample_line(writer.topic.name, color, shape.x, shape.y, shape.size,
                                                       payload))
@@ -512,6 +518,19 @@ class ShapeApplication:
                 break
             next_write = _wait_until(next_write + o.write_period_ms / 1000, self.stop)
         self.finish_instances(colors)
+
+    def write_not_done(self, topic: str, color: str, error: DDSException) -> None:
+        """A write Cyclone did not do: as the reference (which ignores write's result), the sample is not sent and
+        the next one is tried. The usual case is a timeout: a KEEP_ALL reliable writer whose readers acknowledge
+        slower than it writes blocks for max_blocking_time (100 ms) and gives up. Said on stderr, at most once a
+        second, without digits in brackets (the suite's runner reads '[n]' as a sample's size)."""
+        self.writes_not_done += 1
+        now = time.monotonic()
+        if now - self.write_warned_at >= 1.0:
+            self.write_warned_at = now
+            reason = str(error).split("]", 1)[0].lstrip("[")
+            print(f"{PROG}: write of {color} on {topic} not done ({reason}), {self.writes_not_done} so far; "
+                  "the next sample is tried", file=sys.stderr, flush=True)
 
     def finish_instances(self, colors: list[str]) -> None:
         """Unregister (the default) or dispose every instance, then give readers a second to acknowledge."""
