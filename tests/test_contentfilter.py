@@ -301,7 +301,8 @@ def test_a_filtered_reader_of_numpy_views(bus: Databus) -> None:
     assert isinstance(taken[0].objects, np.ndarray) and taken[0].objects["size"][0, 2] == 2.5
     assert reader.filtered_out == 1  # the same writer's earlier sample was taken first
     raw_samples: list[Any] = []
-    wait_until(lambda: bool(raw_samples.extend(raw.take()) or raw.filtered_out == 1), what="the raw reader's samples")
+    wait_until(lambda: bool(raw_samples.extend(raw.take()) or (raw_samples and raw.filtered_out == 1)),
+               what="the raw reader's samples")
     assert [VisionSensor.deserialize(bytes(sample.data)).id for sample in raw_samples] == [5]
     assert raw.bad == 0
 
