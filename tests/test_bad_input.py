@@ -72,6 +72,7 @@ def test_missing_required_property(apps, tmp_path: Path) -> None:  # type: ignor
     ("vision", ["-D", "config.pubInterval=0"], r"config.pubInterval = 0 is out of range"),
     ("vision", ["-D", "config.sensorId=-4"], r"config.sensorId = -4 is out of range"),
     ("collision_avoidance", ["-D", "config.alertSize=tall"], r"config.alertSize = 'tall' is not a number"),
+    ("hmi", ["-D", "config.mallocTrim=-5"], r"config.mallocTrim = -5(\.0)? is out of range"),
 ])
 def test_bad_properties(apps, app: str, args: list[str], pattern: str) -> None:  # type: ignore[no-untyped-def]
     assert_one_line_error(apps.run(app, *args), rf"^{app}: .*{pattern}")

@@ -38,7 +38,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
 from automotive import config, cyclone
-from automotive.bus import badsamples, cyclonelog
+from automotive.bus import badsamples, cyclonelog, memtune
 from automotive.bus.cli import (
     EXIT_BAD_INPUT,
     MAX_DOMAIN_ID,
@@ -126,6 +126,10 @@ class Application:
         # After this many seconds, endpoints that matched nothing are reported: the sign of a wrong peer list,
         # domain id or QoS (0 turns the report off).
         self.match_report_s = props.get_float("config.matchReport", 10.0, minimum=0)
+        # Every this many seconds the process's free malloc memory goes back to the kernel, so that a burst does not
+        # stay resident (automotive.bus.memtune.PeriodicTrim; 0 turns it off).
+        self.malloc_trim_s = props.get_float("config.mallocTrim", memtune.TRIM_INTERVAL_S, minimum=0)
+        self.trimmer: memtune.PeriodicTrim | None = None
         self.stats = Stats(getattr(args, "stats", None), self.instance_name)
         # Bad samples from the bus: one line per topic and kind, then a count every config.badSampleReport seconds.
         self.reporter = badsamples.configure(log, props.get_float("config.badSampleReport",
@@ -209,6 +213,8 @@ class Application:
         self.stats.record("ready")
         if self.match_report_s > 0:
             threading.Thread(target=self._report_unmatched, name="match-report", daemon=True).start()
+        if self.malloc_trim_s > 0:
+            self.trimmer = memtune.PeriodicTrim(self.stop_event, self.malloc_trim_s).start()
 
     def _report_unmatched(self) -> None:
         if self.stop_event.wait(self.match_report_s):

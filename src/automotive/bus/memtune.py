@@ -18,8 +18,16 @@ ever freed (2 MiB after the first receive buffer), so every burst below that bec
 processes raise both further for their 4 MiB frames (automotive.wire.camera.tune_process_for_large_frames, through
 :func:`set_malloc_thresholds`).
 
+Thresholds act only at the top of an arena. Memory freed below a live block (a burst of LiDAR clouds or camera
+frames queued while the process was descheduled, freed in another order than allocated) stays resident however low
+the trim threshold is: such bursts were the steps left in the 2-hour soak (docs/memory.md, cause 5). So every
+application also gives its free memory back once a minute (:class:`PeriodicTrim`, glibc's ``malloc_trim(0)``, which
+since glibc 2.8 returns the free pages inside every arena, not only at the top): what a burst leaves is resident for a
+minute at most, and the pages reused between two trims are faulted in again once.
+
 This is the C library's allocator, not Cyclone's internals: it lives in the bus layer, beside the participant it is
-set up for (automotive.bus.endpoints.Databus calls :func:`settle_malloc` before creating it).
+set up for (automotive.bus.endpoints.Databus calls :func:`settle_malloc` before creating it; an application starts
+its :class:`PeriodicTrim` when its set-up is done).
 """
 
 from __future__ import annotations
@@ -27,6 +35,7 @@ from __future__ import annotations
 import ctypes
 import functools
 import sys
+import threading
 from collections.abc import Callable
 
 # glibc mallopt parameters (malloc.h)
@@ -34,6 +43,9 @@ M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
 MMAP_THRESHOLD = 1024 * 1024
 TRIM_THRESHOLD = 1024 * 1024
+# How often an application gives its free memory back (config.mallocTrim): once a minute costs nothing measurable
+# (a few milliseconds of page faults afterwards in the camera processes) and bounds a burst's stay to a minute.
+TRIM_INTERVAL_S = 60.0
 
 
 @functools.cache
@@ -48,6 +60,59 @@ def _mallopt() -> Callable[[int, int], int] | None:
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int
     return mallopt  # type: ignore[no-any-return]
+
+
+@functools.cache
+def _malloc_trim() -> Callable[[int], int] | None:
+    """glibc's malloc_trim, loaded once; None where there is none."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        malloc_trim = ctypes.CDLL(None).malloc_trim
+    except (OSError, AttributeError):
+        return None
+    malloc_trim.argtypes = [ctypes.c_size_t]
+    malloc_trim.restype = ctypes.c_int
+    return malloc_trim  # type: ignore[no-any-return]
+
+
+def give_back_free_memory() -> bool | None:
+    """Return malloc's free pages, in every arena, to the kernel (``malloc_trim(0)``).
+
+    True when some memory was given back, False when there was none to give, None where there is no glibc. The call
+    releases the GIL (ctypes), so the other Python threads go on; the allocating C threads wait for each arena's lock
+    in turn, for the time of a few madvise calls.
+    """
+    malloc_trim = _malloc_trim()
+    if malloc_trim is None:
+        return None
+    return bool(malloc_trim(0))
+
+
+class PeriodicTrim:
+    """A daemon thread that gives the process's free memory back every ``interval_s`` seconds until ``stop`` is set.
+
+    ``trims`` counts the calls made, ``released`` those that gave memory back (for tests and the memory probe).
+    """
+
+    def __init__(self, stop: threading.Event, interval_s: float = TRIM_INTERVAL_S):
+        if interval_s <= 0:
+            raise ValueError(f"interval {interval_s} s: expected a positive number of seconds")
+        self.stop = stop
+        self.interval_s = interval_s
+        self.trims = 0
+        self.released = 0
+        self.thread = threading.Thread(target=self._run, name="malloc-trim", daemon=True)
+
+    def start(self) -> PeriodicTrim:
+        if _malloc_trim() is not None:  # not glibc: nothing to give back this way, no thread
+            self.thread.start()
+        return self
+
+    def _run(self) -> None:
+        while not self.stop.wait(self.interval_s):
+            self.released += bool(give_back_free_memory())
+            self.trims += 1
 
 
 def set_malloc_thresholds(mmap_bytes: int, trim_bytes: int) -> bool:
