@@ -235,15 +235,21 @@ class CheckedReader(DataReader[T]):
 
     def _report_undecodable(self, error: Exception, info: Any = None) -> None:
         problem = undecodable(error, f"a sample that decodes as {type_name(self.topic.data_type)}")
-        if info is None:  # a whole batch failed in Cyclone's take: no sample says which writer
-            (self.reporter or badsamples.reporter()).report(self.topic.get_name(), problem, "a writer")
-        else:
-            self.report(problem, info)
+        # info None: a whole batch failed in Cyclone's take, no sample says which writer
+        report_bad_sample(self, self._writer_names, problem, None if info is None else info.publication_handle)
 
     def report(self, problem: BadSample, info: Any, action: str = "ignored") -> None:
         """Report a bad sample of this reader (found by the reader, or by the application: a rule of its own)."""
-        reporter = self.reporter or badsamples.reporter()
-        reporter.report(self.topic.get_name(), problem, self._writer_names.describe(info.publication_handle), action)
+        report_bad_sample(self, self._writer_names, problem, info.publication_handle, action)
+
+
+def report_bad_sample(reader: DataReader[Any], writer_names: WriterNames, problem: BadSample, writer: int | None,
+                      action: str = "ignored") -> None:
+    """Report a bad sample of ``reader`` to its own reporter (``reader.reporter``) or else the process's, naming the
+    writer that sent it (``writer``, an instance handle; None: not known)."""
+    reporter = getattr(reader, "reporter", None) or badsamples.reporter()
+    sender = "a writer" if writer is None else writer_names.describe(writer)
+    reporter.report(reader.topic.get_name(), problem, sender, action)
 
 
 def ended_instance(key: Any, info: Any) -> InvalidSample:

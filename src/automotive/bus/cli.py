@@ -46,10 +46,7 @@ def dump_stacks_on_request() -> None:
     """
     signal.signal(DUMP_STACKS_SIGNAL, _ignore_in_main_thread)  # a Python handler, so that the byte is written
     _start_signal_thread()
-    with _signal_callbacks_lock:  # once, however many programs' main run in this process
-        callbacks = _signal_callbacks.setdefault(int(DUMP_STACKS_SIGNAL), [])
-        if _dump_stacks not in callbacks:
-            callbacks.append(_dump_stacks)
+    _register([DUMP_STACKS_SIGNAL], _dump_stacks, once=True)  # however many programs' main run in this process
 
 
 def _dump_stacks(signum: int) -> None:
@@ -73,9 +70,7 @@ def on_signals(signals: Iterable[signal.Signals], callback: Callable[[int], None
     handler = main_thread_handler or _ignore_in_main_thread
     previous = {sig: signal.signal(sig, handler) for sig in chosen}  # a Python handler: the byte is written
     _start_signal_thread()
-    with _signal_callbacks_lock:
-        for sig in chosen:
-            _signal_callbacks.setdefault(int(sig), []).append(callback)
+    _register(chosen, callback)
 
     def restore() -> None:
         with _signal_callbacks_lock:
@@ -87,6 +82,15 @@ def on_signals(signals: Iterable[signal.Signals], callback: Callable[[int], None
             signal.signal(sig, old)
 
     return restore
+
+
+def _register(signals: Iterable[signal.Signals], callback: Callable[[int], None], once: bool = False) -> None:
+    """Have the signal thread call ``callback`` for each of ``signals`` (``once``: unless it already does)."""
+    with _signal_callbacks_lock:
+        for sig in signals:
+            callbacks = _signal_callbacks.setdefault(int(sig), [])
+            if not (once and callback in callbacks):
+                callbacks.append(callback)
 
 
 def _ignore_in_main_thread(signum: int, frame: FrameType | None) -> None:

@@ -15,9 +15,9 @@ from typing import Any
 from cyclonedds.core import InstanceState
 from cyclonedds.sub import DataReader
 
-from automotive.bus import badsamples, validation
+from automotive.bus import validation
 from automotive.bus.badsamples import BadSample
-from automotive.bus.checkedreader import decoder, undecodable
+from automotive.bus.checkedreader import decoder, report_bad_sample, undecodable
 from automotive.bus.contentfilter import Predicate, SeenInstances, evaluate
 from automotive.cyclone.bounds import type_name
 from automotive.wire.rawsample import Buffer, RawReader, RawSample, SampleKind
@@ -71,8 +71,7 @@ class FilteredRawReader(RawReader):
 
     def _report(self, sample: RawSample, problem: BadSample) -> None:
         self.bad += 1
-        reporter = getattr(self.reader, "reporter", None) or badsamples.reporter()
-        reporter.report(self.reader.topic.get_name(), problem, self._writer_names.describe(sample.writer))
+        report_bad_sample(self.reader, self._writer_names, problem, sample.writer)
 
 
 def filtered_raw_reader(reader: DataReader[Any], content_filter: Predicate | None,
