@@ -37,6 +37,7 @@ import functools
 import sys
 import threading
 from collections.abc import Callable
+from typing import Any
 
 # glibc mallopt parameters (malloc.h)
 M_TRIM_THRESHOLD = -1
@@ -49,31 +50,26 @@ TRIM_INTERVAL_S = 60.0
 
 
 @functools.cache
-def _mallopt() -> Callable[[int, int], int] | None:
-    """glibc's mallopt, loaded once; None where there is none (not Linux, or musl: no tuning to do)."""
+def _glibc_function(name: str, *argtypes: type[Any]) -> Callable[..., int] | None:
+    """glibc's function ``name`` (returning int), loaded once; None where there is none (not Linux, or musl: nothing
+    to tune)."""
     if not sys.platform.startswith("linux"):
         return None
     try:
-        mallopt = ctypes.CDLL(None).mallopt
+        function = getattr(ctypes.CDLL(None), name)
     except (OSError, AttributeError):
         return None
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
-    mallopt.restype = ctypes.c_int
-    return mallopt  # type: ignore[no-any-return]
+    function.argtypes = list(argtypes)
+    function.restype = ctypes.c_int
+    return function  # type: ignore[no-any-return]
 
 
-@functools.cache
-def _malloc_trim() -> Callable[[int], int] | None:
-    """glibc's malloc_trim, loaded once; None where there is none."""
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        malloc_trim = ctypes.CDLL(None).malloc_trim
-    except (OSError, AttributeError):
-        return None
-    malloc_trim.argtypes = [ctypes.c_size_t]
-    malloc_trim.restype = ctypes.c_int
-    return malloc_trim  # type: ignore[no-any-return]
+def _mallopt() -> Callable[..., int] | None:
+    return _glibc_function("mallopt", ctypes.c_int, ctypes.c_int)
+
+
+def _malloc_trim() -> Callable[..., int] | None:
+    return _glibc_function("malloc_trim", ctypes.c_size_t)
 
 
 def give_back_free_memory() -> bool | None:
