@@ -88,7 +88,7 @@ def give_back_free_memory() -> bool | None:
 class PeriodicTrim:
     """A daemon thread that gives the process's free memory back every ``interval_s`` seconds until ``stop`` is set.
 
-    ``trims`` counts the calls made, ``released`` those that gave memory back (for tests and the memory probe).
+    ``trims`` counts the calls made, ``released`` those that gave memory back (what a test can watch).
     """
 
     def __init__(self, stop: threading.Event, interval_s: float = TRIM_INTERVAL_S):
