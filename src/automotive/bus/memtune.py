@@ -22,8 +22,8 @@ Thresholds act only at the top of an arena. Memory freed below a live block (a b
 frames queued while the process was descheduled, freed in another order than allocated) stays resident however low
 the trim threshold is: such bursts were the steps left in the 2-hour soak (docs/memory.md, cause 5). So every
 application also gives its free memory back once a minute (:class:`PeriodicTrim`, glibc's ``malloc_trim(0)``, which
-since glibc 2.8 returns the free pages inside every arena, not only at the top): what a burst leaves is resident for a
-minute at most, and the pages reused between two trims are faulted in again once.
+since glibc 2.8 returns the free pages inside every arena and the main heap's top, though not a thread arena's top):
+what a burst leaves is resident for a minute at most, and the pages reused between two trims are faulted in again once.
 
 This is the C library's allocator, not Cyclone's internals: it lives in the bus layer, beside the participant it is
 set up for (automotive.bus.endpoints.Databus calls :func:`settle_malloc` before creating it; an application starts
