@@ -266,17 +266,13 @@ def test_latency_percentiles_in_fixed_memory() -> None:
 # A process of its own, so that no other thread allocates meanwhile: 8 MiB in 128 KiB blocks from malloc, touched,
 # all freed but the block highest in memory, which keeps them below a live block where no trim threshold reaches.
 _BURST_BELOW_A_LIVE_BLOCK = """
-import ctypes, json, os
+import ctypes, json
 from automotive.bus import memtune
+from automotive.bus.memtrace import rss_kB
 
 libc = ctypes.CDLL(None)
 libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
 libc.free.argtypes = [ctypes.c_void_p]
-page = os.sysconf("SC_PAGE_SIZE")
-
-def rss_kB():
-    with open("/proc/self/statm") as statm:
-        return int(statm.read().split()[1]) * page // 1024
 
 assert memtune.settle_malloc()
 size = 128 * 1024

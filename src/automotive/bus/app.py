@@ -129,7 +129,6 @@ class Application:
         # Every this many seconds the process's free malloc memory goes back to the kernel, so that a burst does not
         # stay resident (automotive.bus.memtune.PeriodicTrim; 0 turns it off).
         self.malloc_trim_s = props.get_float("config.mallocTrim", memtune.TRIM_INTERVAL_S, minimum=0)
-        self.trimmer: memtune.PeriodicTrim | None = None
         self.stats = Stats(getattr(args, "stats", None), self.instance_name)
         # Bad samples from the bus: one line per topic and kind, then a count every config.badSampleReport seconds.
         self.reporter = badsamples.configure(log, props.get_float("config.badSampleReport",
@@ -214,7 +213,7 @@ class Application:
         if self.match_report_s > 0:
             threading.Thread(target=self._report_unmatched, name="match-report", daemon=True).start()
         if self.malloc_trim_s > 0:
-            self.trimmer = memtune.PeriodicTrim(self.stop_event, self.malloc_trim_s).start()
+            memtune.PeriodicTrim(self.stop_event, self.malloc_trim_s).start()
 
     def _report_unmatched(self) -> None:
         if self.stop_event.wait(self.match_report_s):
