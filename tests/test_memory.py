@@ -315,15 +315,55 @@ def test_a_burst_freed_below_a_live_block_is_given_back_by_a_trim() -> None:
     assert figures["trimmed"] < figures["freed"] - 6 * 1024, figures  # most of the 8 MiB given back
 
 
-def test_the_periodic_trim_runs_until_its_stop_event() -> None:
-    stop = threading.Event()
-    trimmer = memtune.PeriodicTrim(stop, 0.01).start()
+# The trim thread in a process of its own, looking every 20 ms: its first look trims, looks without growth do not,
+# a burst freed below a live block makes the next look trim it, and it ends with its stop event.
+_PERIODIC_TRIM = """
+import ctypes, json, threading, time
+from automotive.bus import memtune
+from automotive.bus.memtrace import rss_kB
+
+libc = ctypes.CDLL(None)
+libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+libc.free.argtypes = [ctypes.c_void_p]
+
+
+def wait_until(condition):
     deadline = time.monotonic() + 30
-    while trimmer.trims < 3 and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert trimmer.trims >= 3
-    stop.set()
-    trimmer.thread.join(timeout=30)
-    assert not trimmer.thread.is_alive()
+    while not condition():
+        assert time.monotonic() < deadline, "the trim thread did not get there in 30 s"
+        time.sleep(0.005)
+
+
+assert memtune.settle_malloc()
+stop = threading.Event()
+trimmer = memtune.PeriodicTrim(stop, 0.02).start()
+wait_until(lambda: trimmer.trims == 1)
+checks = trimmer.checks
+wait_until(lambda: trimmer.checks >= checks + 5)
+quiet_trims = trimmer.trims
+size = 128 * 1024
+blocks = [libc.malloc(size) for _ in range(65)]
+for block in blocks:
+    ctypes.memset(block, 1, size)
+pinned = max(blocks)
+for block in blocks:
+    if block != pinned:
+        libc.free(block)
+freed = rss_kB()
+wait_until(lambda: trimmer.trims == quiet_trims + 1)
+trimmed = rss_kB()
+stop.set()
+trimmer.thread.join(timeout=30)
+print(json.dumps({"quiet_trims": quiet_trims, "freed": freed, "trimmed": trimmed, "alive": trimmer.thread.is_alive()}))
+"""
+
+
+def test_the_periodic_trim_trims_when_memory_grew_until_its_stop_event() -> None:
+    result = subprocess.run([sys.executable, "-c", _PERIODIC_TRIM], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    figures = json.loads(result.stdout)
+    assert figures["quiet_trims"] == 1, figures  # the first look only: nothing grew in the five after it
+    assert figures["trimmed"] < figures["freed"] - 6 * 1024, figures  # the burst's 8 MiB given back
+    assert figures["alive"] is False, figures
     with pytest.raises(ValueError):
-        memtune.PeriodicTrim(stop, 0)
+        memtune.PeriodicTrim(threading.Event(), 0)

@@ -35,6 +35,16 @@ def test_slope_after_the_warm_up_in_kB_per_hour() -> None:
     assert series("hmi", [1000, 1000]).slope_kB_per_h(0.0) is None  # too few samples for a line
 
 
+def test_held_peak_counts_a_level_that_stays_not_a_burst_the_next_trim_returns() -> None:
+    # a 4 MB burst for 60 s (six samples: one trim interval) at minute 2, a 300 kB step for good at minute 4
+    rss = [5000] * 12 + [9000] * 6 + [5000] * 6 + [5300] * 12
+    one = series("camera_pub", rss)
+    assert one.held_peak(0.0, 230.0) == 5000  # the burst is not held for 90 s
+    assert one.held_peak(240.0, 350.0) == 5300  # the step is
+    assert one.held_peak(300.0, 350.0) is None  # no 90-s span fits in 50 s
+    assert series("vision", [5000] * 12 + [9000] * 10).held_peak(0.0, 210.0) == 9000  # 100 s above is held
+
+
 def test_camera_and_hmi_figures_from_their_status_records(tmp_path: Path) -> None:
     camera, hmi = tmp_path / "camera_sub.jsonl", tmp_path / "hmi.jsonl"
     write_records(camera, {"kind": "window", "samples": 30, "gaps": 0, "mismatches": 0},
@@ -67,6 +77,17 @@ def test_report_table_chart_and_last_line(tmp_path: Path, capsys: pytest.Capture
     assert soak.report([series("vision", flat)], soak.Seen(frames=100), args) == 0
     out = capsys.readouterr().out.splitlines()
     assert out[-2:] == ["goal met", "rss_slope_kB_per_h_max=0 app=vision"]
+
+    # 26 minutes, flat but for a burst returned within a minute in the last 10 minutes, and a step held there
+    args = argparse.Namespace(minutes=26.0, warmup=5.0, chart=tmp_path / "soak.png")
+    burst = [5000] * 157
+    burst[140:146] = [9000] * 6
+    step = [5000] * 130 + [5100] * 27
+    assert soak.report([series("camera_pub", burst), series("hmi", step)], soak.Seen(frames=100), args) == 0
+    out = capsys.readouterr().out.splitlines()
+    goal = next(line for line in out if line.startswith("goal"))
+    assert "hmi: held in the last 10 min 5,100 kB > 5,000 kB + 16 kB" in goal
+    assert "camera_pub: held" not in goal  # (the burst does count in its fitted slope)
 
 
 def test_bad_arguments_are_one_line_and_exit_code_2(capsys: pytest.CaptureFixture[str]) -> None:

@@ -126,8 +126,9 @@ class Application:
         # After this many seconds, endpoints that matched nothing are reported: the sign of a wrong peer list,
         # domain id or QoS (0 turns the report off).
         self.match_report_s = props.get_float("config.matchReport", 10.0, minimum=0)
-        # Every this many seconds the process's free malloc memory goes back to the kernel, so that a burst does not
-        # stay resident (automotive.bus.memtune.PeriodicTrim; 0 turns it off).
+        # Every this many seconds the process looks whether its resident memory grew and then gives its free malloc
+        # memory back to the kernel, so that a burst does not stay resident (automotive.bus.memtune.PeriodicTrim; 0
+        # turns it off).
         self.malloc_trim_s = props.get_float("config.mallocTrim", memtune.TRIM_INTERVAL_S, minimum=0)
         self.stats = Stats(getattr(args, "stats", None), self.instance_name)
         # Bad samples from the bus: one line per topic and kind, then a count every config.badSampleReport seconds.

@@ -21,9 +21,12 @@ processes raise both further for their 4 MiB frames (automotive.wire.camera.tune
 Thresholds act only at the top of an arena. Memory freed below a live block (a burst of LiDAR clouds or camera
 frames queued while the process was descheduled, freed in another order than allocated) stays resident however low
 the trim threshold is: such bursts were the steps left in the 2-hour soak (docs/memory.md, cause 5). So every
-application also gives its free memory back once a minute (:class:`PeriodicTrim`, glibc's ``malloc_trim(0)``, which
-since glibc 2.8 returns the free pages inside every arena and the main heap's top, though not a thread arena's top):
-what a burst leaves is resident for a minute at most, and the pages reused between two trims are faulted in again once.
+application looks once a minute whether its resident memory grew and then gives its free memory back
+(:class:`PeriodicTrim`, glibc's ``malloc_trim``, which since glibc 2.8 returns the free pages inside every arena and
+the main heap's top beyond the trim threshold, though not a thread arena's top): what a burst leaves is resident for
+a minute at most. Only when it grew, and only beyond the trim threshold at the top: a trim every minute regardless
+also returned the pages that the process reuses all the time (the receive thread's spare buffer, a camera frame kept
+at the top of the heap), which then came back, so RSS moved by a receive buffer or a frame from minute to minute.
 
 This is the C library's allocator, not Cyclone's internals: it lives in the bus layer, beside the participant it is
 set up for (automotive.bus.endpoints.Databus calls :func:`settle_malloc` before creating it; an application starts
@@ -34,6 +37,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+import os
 import sys
 import threading
 from collections.abc import Callable
@@ -44,9 +48,18 @@ M_TRIM_THRESHOLD = -1
 M_MMAP_THRESHOLD = -3
 MMAP_THRESHOLD = 1024 * 1024
 TRIM_THRESHOLD = 1024 * 1024
-# How often an application gives its free memory back (config.mallocTrim): once a minute costs nothing measurable
-# (a few milliseconds of page faults afterwards in the camera processes) and bounds a burst's stay to a minute.
+# How often an application looks whether to give its free memory back (config.mallocTrim): once a minute costs
+# nothing measurable and bounds a burst's stay to a minute.
 TRIM_INTERVAL_S = 60.0
+# What makes PeriodicTrim trim: the main heap (where the Python thread's bursts go: decoded LiDAR clouds, frames)
+# resident by this much more than after the last trim, or the whole process by GROWTH_KB more. The receive path's
+# spare buffer (256 KiB, refilled after a trim) stays under the second; a Python burst shows in the first.
+HEAP_GROWTH_KB = 64
+GROWTH_KB = 1024
+
+# The trim threshold this process runs with (set_malloc_thresholds): a trim keeps that much free at the top of the
+# main heap, as free() does, so the camera processes' frames stay there for reuse.
+_trim_threshold_bytes = TRIM_THRESHOLD
 
 
 @functools.cache
@@ -72,8 +85,9 @@ def _malloc_trim() -> Callable[..., int] | None:
     return _glibc_function("malloc_trim", ctypes.c_size_t)
 
 
-def give_back_free_memory() -> bool | None:
-    """Return malloc's free pages, in every arena, to the kernel (``malloc_trim(0)``).
+def give_back_free_memory(keep_top_bytes: int | None = None) -> bool | None:
+    """Return malloc's free pages, in every arena, to the kernel (``malloc_trim``), but for ``keep_top_bytes`` free
+    at the top of the main heap (the process's trim threshold unless given).
 
     True when some memory was given back, False when there was none to give, None where there is no glibc. The call
     releases the GIL (ctypes), so the other Python threads go on; the allocating C threads wait for each arena's lock
@@ -82,18 +96,45 @@ def give_back_free_memory() -> bool | None:
     malloc_trim = _malloc_trim()
     if malloc_trim is None:
         return None
-    return bool(malloc_trim(0))
+    return bool(malloc_trim(_trim_threshold_bytes if keep_top_bytes is None else keep_top_bytes))
+
+
+def resident_kB() -> tuple[int, int]:
+    """(the main heap's, the whole process's) resident kB; (0, 0) where /proc does not tell.
+
+    The main heap's from its entry in /proc/self/smaps, read only as far as that entry (it comes right after the
+    executable's mappings: a few dozen lines, not the thousands of the whole file); the process's from
+    /proc/self/statm.
+    """
+    heap_kB = process_kB = 0
+    try:
+        with open("/proc/self/statm", encoding="ascii") as statm:
+            process_kB = int(statm.read().split()[1]) * (os.sysconf("SC_PAGE_SIZE") // 1024)
+        with open("/proc/self/smaps", encoding="utf-8", errors="replace") as smaps:
+            in_heap = False
+            for line in smaps:
+                if line.rstrip().endswith("[heap]"):
+                    in_heap = True
+                elif in_heap and line.startswith("Rss:"):
+                    heap_kB = int(line.split()[1])
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    return heap_kB, process_kB
 
 
 class PeriodicTrim:
-    """A daemon thread that gives the process's free memory back every ``interval_s`` seconds until ``stop`` is set;
-    ``trims`` counts the calls made."""
+    """A daemon thread that looks every ``interval_s`` seconds, until ``stop`` is set, whether the process's resident
+    memory grew since the last trim (the main heap by more than HEAP_GROWTH_KB, or the whole by more than GROWTH_KB)
+    and then gives its free memory back. The first look always trims: what the set-up freed. ``checks`` counts the
+    looks, ``trims`` the trims."""
 
     def __init__(self, stop: threading.Event, interval_s: float = TRIM_INTERVAL_S):
         if interval_s <= 0:
             raise ValueError(f"interval {interval_s} s: expected a positive number of seconds")
         self.stop = stop
         self.interval_s = interval_s
+        self.checks = 0
         self.trims = 0
         self.thread = threading.Thread(target=self._run, name="malloc-trim", daemon=True)
 
@@ -103,17 +144,28 @@ class PeriodicTrim:
         return self
 
     def _run(self) -> None:
+        lowest: tuple[int, int] | None = None  # the least resident memory since the last trim: (main heap, process)
         while not self.stop.wait(self.interval_s):
-            give_back_free_memory()
-            self.trims += 1
+            heap_kB, process_kB = resident_kB()
+            if lowest is None or heap_kB > lowest[0] + HEAP_GROWTH_KB or process_kB > lowest[1] + GROWTH_KB:
+                give_back_free_memory()
+                self.trims += 1
+                lowest = resident_kB()
+            else:
+                lowest = (min(lowest[0], heap_kB), min(lowest[1], process_kB))
+            self.checks += 1
 
 
 def set_malloc_thresholds(mmap_bytes: int, trim_bytes: int) -> bool:
     """Fix glibc's mmap and trim thresholds for this process; False where there is no glibc (or it refused)."""
+    global _trim_threshold_bytes
     mallopt = _mallopt()
     if mallopt is None:
         return False
-    return bool(mallopt(M_MMAP_THRESHOLD, mmap_bytes)) and bool(mallopt(M_TRIM_THRESHOLD, trim_bytes))
+    if bool(mallopt(M_MMAP_THRESHOLD, mmap_bytes)) and bool(mallopt(M_TRIM_THRESHOLD, trim_bytes)):
+        _trim_threshold_bytes = trim_bytes
+        return True
+    return False
 
 
 def settle_malloc() -> bool:
