@@ -35,7 +35,7 @@ from pathlib import Path
 from automotive.bus.cli import ArgumentParser, add_domain_option
 from automotive.bus.latency import percentile
 from automotive.tools import launch, netlab
-from automotive.tools.children import Child, program_command
+from automotive.tools.children import Child, program_command, thread_cpu_by_name
 
 PROG = "automotive-bench-discovery"
 DISCOVERY_THREADS = ("tev", "dq.builtins")
@@ -66,26 +66,8 @@ class Namespace(netlab.Namespace):
 
 
 def thread_cpu_s(pids: list[int], names: tuple[str, ...]) -> float:
-    """CPU seconds (user + system) of the threads of these processes that have one of these names.
-
-    Read from /proc by hand: psutil gives each thread's times but not its name.
-    """
-    total = 0
-    for pid in pids:
-        try:
-            threads = os.listdir(f"/proc/{pid}/task")
-        except OSError:
-            continue
-        for tid in threads:
-            try:
-                stat = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
-            except OSError:
-                continue
-            name = stat[stat.index("(") + 1:stat.rindex(")")]
-            fields = stat[stat.rindex(")") + 2:].split()
-            if name in names:
-                total += int(fields[11]) + int(fields[12])
-    return total / os.sysconf("SC_CLK_TCK")
+    """CPU seconds (user + system) of the threads of these processes that have one of these names."""
+    return sum(seconds for name, seconds in thread_cpu_by_name(pids).items() if name in names)
 
 
 JOINER = r'''
