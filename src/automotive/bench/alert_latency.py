@@ -4,15 +4,16 @@ taking the command, through the real applications in event mode, next to a C cha
     automotive-bench-alert-latency                          1 and 50 vision sensors, 2 and 10 objects a sample
     automotive-bench-alert-latency --sensors 1 --objects 2 --window 10 --png latency.png
     automotive-bench-alert-latency --mode periodic          sensor fusion as the original: a list every 100 ms
+    automotive-bench-alert-latency --vision-interval 10     the same chain kept warm: a vision sample every 10 ms
 
 For each configuration: hmi (console), vehicle_platform, collision_avoidance, sensor_fusion (config.mode=event) and N
-vision processes (config.sensorId 1..N, 10 Hz each) run on loopback in their own DDS domain, each with ``--stats
-FILE``. The vision data is a CSV file written here: every other row holds an object 2.5 m tall (collision avoidance
-alerts above 2.0 m), so which vision samples carry the tall object is known from their numbers. Every application
-writes with an explicit DDS source timestamp and records what it took (``take``: the source timestamp and when it was
-taken) and wrote (``write``/``list``: the source timestamp written and those of its inputs), so each tall vision
-sample is followed, by source timestamps, through its object list and the alert and command made from it, to the
-HMI's and the vehicle platform's takes. All clocks are this host's wall clock.
+vision processes (config.sensorId 1..N, 10 Hz each, or --vision-interval) run on loopback in their own DDS domain,
+each with ``--stats FILE``. The vision data is a CSV file written here: every other row holds an object 2.5 m tall
+(collision avoidance alerts above 2.0 m), so which vision samples carry the tall object is known from their numbers.
+Every application writes with an explicit DDS source timestamp and records what it took (``take``: the source
+timestamp and when it was taken) and wrote (``write``/``list``: the source timestamp written and those of its inputs),
+so each tall vision sample is followed, by source timestamps, through its object list and the alert and command made
+from it, to the HMI's and the vehicle platform's takes. All clocks are this host's wall clock.
 
 Hops (milliseconds; p50, p99, max over the window):
   vision -> fusion      vision sample's source timestamp -> its object list written (transport + fusion's work)
@@ -25,8 +26,10 @@ and where the time of the alert hops goes, from the take records: each hop's tra
 application's take: Cyclone's path and the wake-up of the taking thread) and each application's work (take -> write).
 
 The C chain: ``ddsperf ping``/``pong`` (Cyclone's C tool, loopback) round trip / 2 at each hop's serialized size
-(vision sample, object list, alert) and at the applications' rate (--c-rate, 10 Hz as the vision sensors: a hop after
-100 ms of idleness costs several times one after 10 ms, in C as in Python, docs/codecs.md); its p99s added up.
+(vision sample, object list, alert) and at the applications' rate (--c-rate, by default the vision sensors': a hop
+after 100 ms of idleness costs several times one after 10 ms, in C as in Python, docs/codecs.md); its p99s added up.
+--vision-interval 10 runs the same chain ten times as often, which shows how much of a hop is the wake-up of an idle
+process.
 ``chain_vs_c`` = alert total p99 / the C chain's p99; ``x p50`` and ``x p99`` compare each hop with its C counterpart.
 ddsperf prints its percentiles once a second, and the median of those is taken: at 10 Hz a second's "99%" is the
 slowest of its 10 round trips, so the C p99 shown is nearer the true 90th-95th percentile (C looks faster, not slower).
@@ -193,7 +196,7 @@ def follow(processes: dict[str, Process], window_start_ns: int, window_end_ns: i
 
 
 def run_one(sensors: int, objects: int, window: float, domain: int, timeout: float,
-            log_dir: Path | None, mode: str = "event") -> Result:
+            log_dir: Path | None, mode: str = "event", vision_interval_ms: int = 100) -> Result:
     workdir = Path(tempfile.mkdtemp(prefix=f"{PROG}-"))
     env = dict(os.environ)
     env["CYCLONEDDS_URI"] = NetworkConfig(max_participants=max(100, sensors + 20)).cyclone_xml()
@@ -212,7 +215,8 @@ def run_one(sensors: int, objects: int, window: float, domain: int, timeout: flo
         wait_until(lambda: all(p.records("ready") for p in everyone), timeout, "the four applications", everyone)
         for i in range(1, sensors + 1):
             processes[f"vision-{i}"] = Process(f"vision-{i}", "vision",
-                                               [*common, "-D", f"config.sensorId={i}", "-D", f"dataFile={csv}"],
+                                               [*common, "-D", f"config.sensorId={i}", "-D", f"dataFile={csv}",
+                                                "-D", f"config.pubInterval={vision_interval_ms}"],
                                                env, workdir)
         everyone = list(processes.values())
         wait_until(lambda: any(r["topic"] == "VisionTopic" and r["endpoint"] == "reader" and r["count"] >= sensors
@@ -325,8 +329,10 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"objects per vision sample, at most {VISION_OBJECT_LIST_MAX_SIZE} (default 2,10)")
     parser.add_argument("--window", type=float, default=20.0, help="seconds measured per configuration (default 20)")
     parser.add_argument("--c-seconds", type=int, default=20, help="seconds of ddsperf per size (default 20; 0: none)")
-    parser.add_argument("--c-rate", type=int, default=10,
-                        help="ddsperf's round trips a second (default 10: the vision sensors' rate)")
+    parser.add_argument("--c-rate", type=int, default=None,
+                        help="ddsperf's round trips a second (default: the vision sensors' rate)")
+    parser.add_argument("--vision-interval", type=int, default=100, metavar="MS",
+                        help="ms between two samples of a vision sensor (config.pubInterval; default 100, as shipped)")
     parser.add_argument("--timeout", type=float, default=180.0, help="seconds allowed for start and discovery")
     parser.add_argument("--mode", choices=["event", "periodic"], default="event",
                         help="sensor fusion's config.mode (default event)")
@@ -341,16 +347,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: --sensors and --objects take numbers separated by commas", file=sys.stderr)
         return 2
     if any(n < 1 for n in sensor_counts) or any(not 0 < n <= VISION_OBJECT_LIST_MAX_SIZE for n in object_counts) \
-            or args.window <= 0 or args.c_seconds < 0 or args.c_rate < 1:
+            or args.window <= 0 or args.c_seconds < 0 or (args.c_rate is not None and args.c_rate < 1) \
+            or args.vision_interval < 1:
         print(f"{PROG}: --sensors must be positive, --objects 1..{VISION_OBJECT_LIST_MAX_SIZE}, --window positive, "
-              "--c-seconds 0 or more, --c-rate 1 or more", file=sys.stderr)
+              "--c-seconds 0 or more, --c-rate and --vision-interval 1 or more", file=sys.stderr)
         return 2
 
+    if args.c_rate is None:
+        args.c_rate = max(1, round(1000 / args.vision_interval))
     results: list[Result] = []
     for sensors in sensor_counts:
         for objects in object_counts:
             try:
-                result = run_one(sensors, objects, args.window, args.domain, args.timeout, args.log_dir, args.mode)
+                result = run_one(sensors, objects, args.window, args.domain, args.timeout, args.log_dir, args.mode,
+                                 args.vision_interval)
             except (TimeoutError, RuntimeError) as error:
                 print(f"{PROG}: {sensors} sensor(s), {objects} object(s): {error}", file=sys.stderr)
                 return 1
@@ -364,8 +374,8 @@ def main(argv: list[str] | None = None) -> int:
           f"load average {os.getloadavg()[0]:.1f}; C: ddsperf at {args.c_rate} Hz; ms")
     for result in results:
         print()
-        print(f"{result.sensors} vision sensor(s) x 10 Hz, {result.objects} objects a sample, lists of "
-              f"{result.list_objects:.1f} objects on average; {result.tall_samples} tall samples, "
+        print(f"{result.sensors} vision sensor(s) x {1000 / args.vision_interval:g} Hz, {result.objects} objects a "
+              f"sample, lists of {result.list_objects:.1f} objects on average; {result.tall_samples} tall samples, "
               f"{result.lost} without an alert taken by the HMI")
         print(f"  {'hop':22} {'n':>5} {'p50':>8} {'p99':>8} {'max':>8} | {'C bytes':>7} {'C p50':>7} {'C p99':>7} "
               f"{'x p50':>6} {'x p99':>6}")
