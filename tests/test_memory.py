@@ -315,61 +315,6 @@ def test_a_burst_freed_below_a_live_block_is_given_back_by_a_trim() -> None:
     assert figures["trimmed"] < figures["freed"] - 6 * 1024, figures  # most of the 8 MiB given back
 
 
-# A process with the camera processes' thresholds: a thread frees 4 MiB at the top of its own arena (kept: above the
-# mmap threshold's reach and below the 256 MiB trim threshold, as camera_sub's receive thread did with a frame), then
-# keeps allocating and freeing 128 KiB as a camera's threads do all the time. The trim thread's first look returns it.
-_THREAD_ARENA_TOP = """
-import ctypes, json, threading, time
-from automotive.bus import memtune
-from automotive.bus.memtrace import rss_kB
-
-libc = ctypes.CDLL(None)
-libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
-libc.free.argtypes = [ctypes.c_void_p]
-assert memtune.set_malloc_thresholds(64 * 1024 * 1024, 256 * 1024 * 1024)
-freed_at_top, done = threading.Event(), threading.Event()
-
-
-def receive_thread():
-    pinned = libc.malloc(128 * 1024)  # the arena's first block, below the frame
-    frame = libc.malloc(4 * 1024 * 1024)
-    ctypes.memset(frame, 1, 4 * 1024 * 1024)
-    libc.free(frame)
-    freed_at_top.set()
-    while not done.is_set():
-        block = libc.malloc(128 * 1024)
-        ctypes.memset(block, 1, 128 * 1024)
-        libc.free(block)
-        time.sleep(0.002)
-    libc.free(pinned)
-
-
-worker = threading.Thread(target=receive_thread)
-worker.start()
-freed_at_top.wait(30)
-time.sleep(0.1)
-kept = rss_kB()
-stop = threading.Event()
-trimmer = memtune.PeriodicTrim(stop, 0.02).start()
-deadline = time.monotonic() + 30
-while trimmer.trims < 1 and time.monotonic() < deadline:
-    time.sleep(0.005)
-trimmed = rss_kB()
-stop.set()
-done.set()
-worker.join(30)
-print(json.dumps({"kept": kept, "trimmed": trimmed, "trims": trimmer.trims}))
-"""
-
-
-def test_a_frame_freed_at_the_top_of_a_thread_arena_is_given_back_by_a_trim() -> None:
-    result = subprocess.run([sys.executable, "-c", _THREAD_ARENA_TOP], capture_output=True, text=True, timeout=120)
-    assert result.returncode == 0, result.stderr
-    figures = json.loads(result.stdout)
-    assert figures["trims"] >= 1, figures
-    assert figures["trimmed"] < figures["kept"] - 3 * 1024, figures  # the 4 MiB given back
-
-
 # The trim thread in a process of its own, looking every 20 ms: its first look trims, looks without growth do not,
 # a burst freed below a live block makes the next look trim it, and it ends with its stop event.
 _PERIODIC_TRIM = """

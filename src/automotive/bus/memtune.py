@@ -60,12 +60,6 @@ GROWTH_KB = 1024
 # The trim threshold this process runs with (set_malloc_thresholds): a trim keeps that much free at the top of the
 # main heap, as free() does, so the camera processes' frames stay there for reuse.
 _trim_threshold_bytes = TRIM_THRESHOLD
-# malloc_trim does not shrink a thread arena's top: glibc does that only in free(), when a block of 64 KiB or more is
-# freed in that arena while its free top exceeds the trim threshold. With the camera processes' 256 MiB a frame freed
-# at such a top stayed resident for good (camera_sub's receive thread: +4 MB after a moment with one frame more in
-# flight than ever before). So after a trim in such a process the threshold is the applications' 1 MiB for this long:
-# the frames freed meanwhile (30 a second) let those tops shrink; then frames are kept again.
-ARENA_TOP_WINDOW_S = 0.2
 
 
 @functools.cache
@@ -155,25 +149,11 @@ class PeriodicTrim:
             heap_kB, process_kB = resident_kB()
             if lowest is None or heap_kB > lowest[0] + HEAP_GROWTH_KB or process_kB > lowest[1] + GROWTH_KB:
                 give_back_free_memory()
-                if _trim_threshold_bytes > TRIM_THRESHOLD:
-                    self._let_thread_arena_tops_shrink()
                 self.trims += 1
                 lowest = resident_kB()
             else:
                 lowest = (min(lowest[0], heap_kB), min(lowest[1], process_kB))
             self.checks += 1
-
-
-    def _let_thread_arena_tops_shrink(self) -> None:
-        """The applications' trim threshold for ARENA_TOP_WINDOW_S, then this process's own again."""
-        mallopt = _mallopt()
-        if mallopt is None:
-            return
-        mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD)
-        try:
-            self.stop.wait(ARENA_TOP_WINDOW_S)
-        finally:
-            mallopt(M_TRIM_THRESHOLD, _trim_threshold_bytes)
 
 
 def set_malloc_thresholds(mmap_bytes: int, trim_bytes: int) -> bool:
