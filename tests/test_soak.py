@@ -12,6 +12,7 @@ import psutil
 import pytest
 
 from automotive.bench import soak
+from automotive.bus.network import RECEIVE_BUFFER_SIZE
 
 
 def series(name: str, rss_kB: list[int], interval_s: float = 10.0) -> soak.Series:
@@ -43,6 +44,10 @@ def test_held_peak_counts_a_level_that_stays_not_a_burst_the_next_trim_returns()
     assert one.held_peak(240.0, 350.0) == 5300  # the step is
     assert one.held_peak(300.0, 350.0) is None  # no 90-s span fits in 50 s
     assert series("vision", [5000] * 12 + [9000] * 10).held_peak(0.0, 210.0) == 9000  # 100 s above is held
+    # samples come a little late, each by its own amount: the same levels
+    late = series("camera_pub", rss)
+    late.times_s = [t + (0.02 if index % 2 else 0.05) for index, t in enumerate(late.times_s)]
+    assert late.held_peak(0.0, 230.0) == 5000 and late.held_peak(240.0, 350.0) == 5300
 
 
 def test_camera_and_hmi_figures_from_their_status_records(tmp_path: Path) -> None:
@@ -82,12 +87,36 @@ def test_report_table_chart_and_last_line(tmp_path: Path, capsys: pytest.Capture
     args = argparse.Namespace(minutes=26.0, warmup=5.0, chart=tmp_path / "soak.png")
     burst = [5000] * 157
     burst[140:146] = [9000] * 6
-    step = [5000] * 130 + [5100] * 27
+    step = [5000] * 130 + [5300] * 27
     assert soak.report([series("camera_pub", burst), series("hmi", step)], soak.Seen(frames=100), args) == 0
     out = capsys.readouterr().out.splitlines()
     goal = next(line for line in out if line.startswith("goal"))
-    assert "hmi: held in the last 10 min 5,100 kB > 5,000 kB + 16 kB" in goal
+    assert "hmi: held in the last 10 min 5,300 kB > 5,000 kB + 256 kB" in goal
     assert "camera_pub: held" not in goal  # (the burst does count in its fitted slope)
+
+
+def test_the_peak_tolerance_is_one_receive_buffer() -> None:
+    assert f"{soak.PEAK_TOLERANCE_KB}KiB" == RECEIVE_BUFFER_SIZE
+
+
+def test_report_again_from_a_samples_file(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    samples, work = tmp_path / "samples.jsonl", tmp_path / "work"
+    work.mkdir()
+    write_records(work / "camera_sub.jsonl", {"kind": "totals", "samples": 600, "gaps": 0, "mismatches": 0})
+    write_records(work / "hmi.jsonl", {"kind": "shown", "state": "alert", "texts": ["x"]})
+    samples.write_text("".join(json.dumps({"t_s": 10.0 * n + 0.03, "app": app, "rss_kB": 5000 + (n % 3),
+                                           "cpu_s": n * 0.1}) + "\n"
+                               for n in range(157) for app in ("vision", "camera_sub")))
+    assert soak.main(["--report", str(samples), "--work", str(work), "--chart", str(tmp_path / "again.png")]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "camera: 600 frames, 0 gaps, 0 mismatches; HMI: 1 alerts shown" in "\n".join(out)
+    assert out[-2] == "goal met" and out[-1].startswith("rss_slope_kB_per_h_max=")
+    assert (tmp_path / "again.png").read_bytes()[:4] == b"\x89PNG"
+    samples.write_text('{"t_s": 0, "app": "vision"}\n')
+    with pytest.raises(SystemExit) as ended:
+        soak.main(["--report", str(samples), "--work", str(work)])
+    assert ended.value.code == 2
+    assert f"--report {samples}, line 1: expected a JSON object" in capsys.readouterr().err
 
 
 def test_bad_arguments_are_one_line_and_exit_code_2(capsys: pytest.CaptureFixture[str]) -> None:
