@@ -58,7 +58,7 @@ def test_only_the_cyclone_layer_touches_cyclone_internals(path: Path) -> None:
 
 PROGRAMS = sorted(f"automotive.{folder}.{path.stem}" for folder in ("apps", "tools", "bench")
                   for path in (PACKAGE / folder).glob("*.py")
-                  if path.stem not in ("__init__", "children", "flows", "cloudview", "wsrelay", "netlab"))
+                  if path.stem not in ("__init__", "children", "flows", "cloudview", "wsrelay", "netlab", "ddsperf"))
 
 
 SCRIPTS = {entry.name: entry.value for entry in importlib.metadata.distribution("automotive-databus").entry_points
