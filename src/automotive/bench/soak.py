@@ -29,6 +29,7 @@ than in the 10 minutes after the warm-up (by more than a receive buffer, 256 KiB
 from __future__ import annotations
 
 import argparse
+import bisect
 import json
 import os
 import signal
@@ -99,8 +100,8 @@ class Series:
         for first, t in enumerate(self.times_s):
             if t < start_s or t + held_s > end_s:
                 continue
-            span = [rss for when, rss in zip(self.times_s[first:], self.rss_kB[first:]) if when <= t + held_s]
-            last = first + len(span) - 1
+            last = bisect.bisect_right(self.times_s, t + held_s) - 1  # the span's last sample (times ascend)
+            span = self.rss_kB[first:last + 1]
             # Whole: a sample follows the span, or its last one is held_s after the first (samples come a little
             # late, never exactly on the second: the span is the samples within held_s, not ones held_s apart).
             whole = last + 1 < len(self.times_s) or self.times_s[last] >= t + held_s - 1e-6
