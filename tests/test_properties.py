@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from automotive.bus.errors import ConfigError
-from automotive.bus.properties import Properties
+from automotive.bus.properties import Properties, PropertyKeys
 
 SAMPLE = r"""
 # a comment
@@ -122,3 +122,55 @@ def test_bad_unicode_escape_names_file_and_line(tmp_path: Path) -> None:
     path.write_text("ok=1\n# comment\nname=\\u12G4\n")
     with pytest.raises(ConfigError, match=r"bad.properties:3: invalid \\u escape"):
         Properties.load(path)
+
+
+# -- declared keys: refused up front, nearest suggested, undeclared reads noted ------------------------------------
+SAMPLE_KEYS = PropertyKeys.of("config.domainId", "config.pubInterval", "config.sensorId", "qos.Profile", "dataFile",
+                              "long.value", "escaped:key", "config.ratio", "config.enabled", "config.peers",
+                              roles=["Vision"], families=["config.filter."])
+
+
+def test_a_declaration_covers_keys_roles_and_families() -> None:
+    assert SAMPLE_KEYS.covers("topic.Vision") and SAMPLE_KEYS.covers("qos.Vision.Profile")
+    assert SAMPLE_KEYS.covers("config.filter.Circle")
+    assert not SAMPLE_KEYS.covers("config.filter.") and not SAMPLE_KEYS.covers("topic.Lidar")
+    assert (SAMPLE_KEYS | PropertyKeys.of(roles=["Lidar"])).covers("topic.Lidar")
+    assert SAMPLE_KEYS.nearest("config.pubIntervall") == "config.pubInterval"
+    assert SAMPLE_KEYS.nearest("config.sensorid") == "config.sensorId"  # another case
+    assert SAMPLE_KEYS.nearest("config.fliter.Circle") == "config.filter.Circle"
+    assert SAMPLE_KEYS.nearest("completely.different") is None
+    assert SAMPLE_KEYS.nearest("config.Circle") is None  # not shaped as config.filter.<Topic>
+
+
+def test_the_declared_keys_of_a_file_pass(props: Properties) -> None:
+    props.declare(SAMPLE_KEYS, "vision")
+    assert props.declared == SAMPLE_KEYS
+
+
+def test_unknown_keys_are_refused_in_one_line_with_where_and_the_nearest(props: Properties) -> None:
+    props.override(["config.pubIntervall=5", "config.nope=1"])
+    with pytest.raises(ConfigError) as refused:
+        props.declare(SAMPLE_KEYS, "vision")
+    message = str(refused.value)
+    assert "\n" not in message
+    assert message.endswith("app.properties: unknown key(s) for vision: 'config.pubIntervall' (-D; did you mean "
+                            "'config.pubInterval'?), 'config.nope' (-D)"), message
+    assert props.declared is None
+
+
+def test_a_file_key_is_named_with_its_file(tmp_path: Path) -> None:
+    path = tmp_path / "typo.properties"
+    path.write_text("config.domainId=3\nconfig.sensorID=2\n")
+    with pytest.raises(ConfigError, match=r"typo.properties: unknown key\(s\) for vision: 'config.sensorID' \(.*"
+                                          r"typo.properties; did you mean 'config.sensorId'\?\)$"):
+        Properties.load(path).declare(SAMPLE_KEYS, "vision")
+
+
+def test_reads_of_undeclared_keys_are_noted(props: Properties) -> None:
+    props.declare(SAMPLE_KEYS, "vision")
+    props.get_int("config.domainId")
+    props.get_str("config.undeclared", "x")
+    props.get_bool("config.undeclared", True)
+    assert props.undeclared_reads() == ["config.undeclared"]
+    assert Properties({}).undeclared_reads() == []  # without a declaration nothing is noted
+

@@ -4,11 +4,17 @@ The syntax is java.util.Properties' own, parsed by the ``javaproperties`` librar
 ``key value``; ``#`` and ``!`` start comment lines; a line ending in a backslash continues on the next line;
 ``\\uXXXX``, ``\\t``, ``\\n``, ``\\=``, ``\\:`` and ``\\ `` are escapes. Values are also trimmed at the end (Java keeps
 trailing blanks, which in a hand-edited file are always a mistake).
+
+A program declares the keys it reads (:class:`PropertyKeys`); :meth:`Properties.declare` then refuses, before the
+program does anything, a key of the file or of the overrides that it does not know, naming the nearest known key, and
+notes every read of a key the declaration lacks (a defect of the declaration, which the program reports).
 """
 
 from __future__ import annotations
 
+import difflib
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TypeVar
 
@@ -40,11 +46,45 @@ def _parse(text: str, source: str) -> dict[str, str]:
     return values
 
 
+@dataclass(frozen=True)
+class PropertyKeys:
+    """The property keys a program reads: exact keys, and families of keys (a prefix and any name after it, such as
+    ``config.filter.<Topic>``)."""
+
+    exact: frozenset[str] = frozenset()
+    families: tuple[str, ...] = ()
+
+    @classmethod
+    def of(cls, *keys: str, roles: Iterable[str] = (), families: Iterable[str] = ()) -> PropertyKeys:
+        """``keys``, plus for each endpoint role its topic and QoS profile (``topic.<Role>``, ``qos.<Role>.Profile``:
+        automotive.bus.app.Application.writer/reader), plus the families' prefixes."""
+        role_keys = {key for role in roles for key in (f"topic.{role}", f"qos.{role}.Profile")}
+        return cls(frozenset(keys) | role_keys, tuple(families))
+
+    def __or__(self, other: PropertyKeys) -> PropertyKeys:
+        return PropertyKeys(self.exact | other.exact, tuple(dict.fromkeys((*self.families, *other.families))))
+
+    def covers(self, key: str) -> bool:
+        return key in self.exact or any(key.startswith(prefix) and len(key) > len(prefix) for prefix in self.families)
+
+    def nearest(self, key: str) -> str | None:
+        """The known key closest to ``key`` (a typo, another case), if any is close; a family's member keeps the
+        name after the prefix (config.fliter.Circle: config.filter.Circle)."""
+        candidates = set(self.exact)
+        for prefix in self.families:
+            if key.count(".") == prefix.count("."):  # shaped as the family's members: a misspelt prefix
+                candidates.add(prefix + key.rpartition(".")[2])
+        by_lower = {candidate.lower(): candidate for candidate in sorted(candidates)}
+        close = difflib.get_close_matches(key.lower(), list(by_lower), n=1, cutoff=0.8)
+        return by_lower[close[0]] if close else None
+
+
 class Properties:
     """Key/value settings of one application, from a file and command-line overrides.
 
     Every getter records the key it was asked for; ``unused_keys()`` then lists what the file or the overrides
-    hold that the application never read (a misspelt key, most likely).
+    hold that the application never read (a misspelt key, most likely). With a declaration (``declare``), an unknown
+    key is refused up front, and ``undeclared_reads()`` lists the keys read that the declaration lacks.
     """
 
     def __init__(self, values: Mapping[str, str], source: str = "<properties>", folder: Path | None = None):
@@ -53,6 +93,8 @@ class Properties:
         self.source = source
         self.folder = folder if folder is not None else Path.cwd()
         self._read: set[str] = set()
+        self.declared: PropertyKeys | None = None
+        self._undeclared_reads: list[str] = []
 
     @classmethod
     def parse(cls, text: str, source: str = "<properties>", folder: Path | None = None) -> Properties:
@@ -79,6 +121,21 @@ class Properties:
             self._values[key] = value.strip()
             self._sources[key] = source
 
+    def declare(self, keys: PropertyKeys, program: str) -> None:
+        """The keys ``program`` reads: a key set here (the file, the overrides) that it does not know is refused now,
+        all of them in one line, each with where it was set and the nearest known key."""
+        unknown = [key for key in self._values if not keys.covers(key)]
+        if unknown:
+            def described(key: str) -> str:
+                nearest = keys.nearest(key)
+                return f"'{key}' ({self.where(key)}{f'; did you mean {nearest!r}?' if nearest else ''})"
+            raise ConfigError(f"{self.source}: unknown key(s) for {program}: {', '.join(map(described, unknown))}")
+        self.declared = keys
+
+    def undeclared_reads(self) -> list[str]:
+        """The keys read that the declaration lacks (a defect of the program: a user cannot set them)."""
+        return list(self._undeclared_reads)
+
     def __contains__(self, key: str) -> bool:
         return key in self._values
 
@@ -94,6 +151,8 @@ class Properties:
 
     def _raw(self, key: str, default: object) -> str | None:
         self._read.add(key)
+        if self.declared is not None and not self.declared.covers(key) and key not in self._undeclared_reads:
+            self._undeclared_reads.append(key)
         if key in self._values:
             return self._values[key]
         if default is _REQUIRED:
