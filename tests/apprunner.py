@@ -50,3 +50,14 @@ class AppRunner:
     def stop_all(self) -> None:
         for process in self.processes:
             process.stop()
+
+
+def command_of(name: str) -> str:
+    """How a program names itself in its usage and errors: ``vision`` -> ``automotive-vision``, ``record`` ->
+    ``automotive record``, ``bridge`` -> ``automotive foxglove-bridge`` (the command the user types)."""
+    from automotive import command
+
+    if name in command.APPS:
+        return f"automotive-{name.replace('_', '-')}"
+    module = f"automotive.tools.{name}"
+    return next(f"automotive {word}" for word, entry in command.TOOLS.items() if entry.module == module)

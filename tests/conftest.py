@@ -20,11 +20,27 @@ from automotive.bus.network import NetworkConfig  # noqa: E402
 
 # In-process participants (and the application processes the tests start, which inherit it) stay on loopback.
 os.environ["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()
+# The programs the tests start log every sample (DEBUG), which many tests wait for; the tests of the default console
+# (INFO: state changes and a status line) take the variable out of the child's environment.
+os.environ["AUTOMOTIVE_LOG_LEVEL"] = "debug"
 # The fast paths of the test process's own endpoints, as every program switches them on when it starts.
 cyclone.start()
 
-# Domain ids 100..232 belong to tests that ask for the `domain_id` fixture; each test gets its own.
-_domain_ids = itertools.cycle(range(100, 233))
+
+
+def worker_domain_ids(worker: str, workers: int, first: int = 100, last: int = 230) -> range:
+    """The domain ids of one pytest-xdist worker (``gw0``, ``gw1``...; one worker without xdist): ``first..last``
+    shared out, so that tests on two workers never meet on a domain. Ids below 100 are left to the few tests that
+    name one of their own; 231 is the highest id whose ports fit with 120 participant indexes."""
+    index = int(worker[2:]) if worker.startswith("gw") and worker[2:].isdigit() else 0
+    size = (last - first + 1) // max(workers, 1)
+    return range(first + index * size, first + (index + 1) * size)
+
+
+# Tests that ask for the `domain_id` fixture each get a domain id of their own (a worker's ids are used again, in turn,
+# once it has run that many such tests; each test's processes are gone by then).
+_domain_ids = itertools.cycle(worker_domain_ids(os.environ.get("PYTEST_XDIST_WORKER", "gw0"),
+                                                int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
 
 
 @pytest.fixture

@@ -140,4 +140,4 @@ def test_bad_input_is_one_line(apps, domain_id: int) -> None:  # type: ignore[no
             result = apps.run("bridge", "--domain", str(domain_id), *args, timeout=TIMEOUT)
             assert result.returncode == 2, result.stdout + result.stderr
             assert len(result.stderr.strip().splitlines()) == 1, result.stderr
-            assert re.search(rf"^bridge: .*{message}", result.stderr), result.stderr
+            assert re.search(rf"^automotive foxglove-bridge: .*{message}", result.stderr), result.stderr

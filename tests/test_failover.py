@@ -25,6 +25,8 @@ from automotive.bus.qos import QosProfiles
 PRIMARY, BACKUP = 20, 10
 OWNER_LINE = r"\[{topic}\] owner changed: {old} \(strength {old_strength}\) -> {new} \(strength {new_strength}\)"
 TIMEOUT = 40.0  # generous: seven Python processes on a loaded 2-core machine
+# The vehicle platform executed a command (a DEBUG line: the tests see every line).
+EXECUTED = r"vehicle_platform debug: command \d+ stamped"
 
 
 def owned_by(topic: str, name: str) -> str:
@@ -90,14 +92,14 @@ class RedundantSystem:
         return process
 
     def commands_executed(self) -> int:
-        return self.platform.count(r"vehicle_platform: command \d+ stamped")
+        return self.platform.count(EXECUTED)
 
     def wait_for_more_commands(self, count: int = 10) -> None:
-        self.platform.wait_for(r"vehicle_platform: command \d+ stamped", TIMEOUT, self.commands_executed() + count)
+        self.platform.wait_for(EXECUTED, TIMEOUT, self.commands_executed() + count)
 
     def check_consistent(self) -> None:
         """The platform's executed numbers only go up; the HMI shows alternating states, each once."""
-        numbers = [int(n) for n in re.findall(r"vehicle_platform: command (\d+) stamped", self.platform.output)]
+        numbers = [int(n) for n in re.findall(r"vehicle_platform debug: command (\d+) stamped", self.platform.output)]
         assert numbers, self.platform.output[-2000:]
         assert all(a < b for a, b in zip(numbers, numbers[1:])), f"a command number went back: {numbers}"
         shown = re.findall(r"hmi: (DRIVER ALERT|all clear)", self.hmi.output)
@@ -221,9 +223,9 @@ def test_both_collision_avoidance_instances_killed_then_one_back(apps, domain_id
     restarted = system.restart("collision_avoidance-2")
     restarted.wait_for(r"joined: no other instance's command", TIMEOUT)
     to_standby()
-    system.platform.wait_for(r"vehicle_platform: command \d+ stamped", TIMEOUT, lost_at + 10)
+    system.platform.wait_for(EXECUTED, TIMEOUT, lost_at + 10)
     back()
-    numbers = [int(n) for n in re.findall(r"vehicle_platform: command (\d+) stamped", system.platform.output)]
+    numbers = [int(n) for n in re.findall(r"vehicle_platform debug: command (\d+) stamped", system.platform.output)]
     assert all(a < b for a, b in zip(numbers[lost_at:], numbers[lost_at + 1:])), numbers
     assert system.platform.count("stale command") == stale, system.platform.output[-2000:]
 

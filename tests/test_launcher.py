@@ -1,5 +1,5 @@
-"""The launcher (automotive-launch, behind scripts/launch) in background mode: every application reaches its steady
-state, Ctrl-C and `automotive-launch stop` stop them all, an application that dies is reported with its exit code,
+"""The launcher (automotive launch, behind scripts/launch) in background mode: every application reaches its steady
+state, Ctrl-C and `automotive launch stop` stop them all, an application that dies is reported with its exit code,
 subsets and several vision sensors."""
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from automotive.tools import children
 from automotive.tools.launch import SECOND_INTERRUPT_AFTER_S
 
 ROOT = Path(__file__).resolve().parent.parent
-# The console script automotive-launch, as the running interpreter runs it.
+# The console script automotive launch, as the running interpreter runs it.
 LAUNCH = [sys.executable, "-m", "automotive.tools.launch"]
 APPS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "camera_pub",
         "camera_sub")
@@ -52,8 +52,9 @@ def available(module: str) -> bool:
 
 def launch(apps: AppRunner, domain_id: int, log_dir: Path, *args: str,
            env: dict[str, str] | None = None) -> CommandProcess:
-    # No display: the HMI shows its console box whatever the test machine has.
-    return apps.start_command("launch", [*LAUNCH, "--mode", "background",
+    # No display: the HMI shows its console box whatever the test machine has. -v: every line of the applications
+    # on the console, the samples that show each one at work included (tests/test_console.py: the default console).
+    return apps.start_command("launch", [*LAUNCH, "--mode", "background", "-v",
                                          "--domain", str(domain_id), "--log-dir", str(log_dir),
                                          "--stop-timeout", str(STOP_TIMEOUT), *args],
                               env={"DISPLAY": "", "WAYLAND_DISPLAY": "", **(env or {})})
@@ -102,7 +103,7 @@ def test_whole_system_reaches_steady_state_and_ctrl_c_stops_it(apps, domain_id: 
         assert f"--- {name} stopped on SIGTERM" in log
     assert not (tmp_path / "launch.pid").exists()
     assert "how each application ended" in (tmp_path / "launch-summary.txt").read_text()
-    # --stats-dir: each application's status records in <name>.jsonl (what automotive-bench-soak reads)
+    # --stats-dir: each application's status records in <name>.jsonl (what automotive bench soak reads)
     for name in expected:
         assert any(True for _ in stats.read(stats_dir / f"{name}.jsonl", "ready")), f"{name}.jsonl has no ready"
     assert any(record["state"] == "alert" for record in stats.read(stats_dir / "hmi.jsonl", "shown"))
@@ -208,7 +209,7 @@ def test_subset_with_three_vision_sensors_stopped_by_launch_stop(apps, domain_id
     (["--vision-sensors", "0"], "--vision-sensors 0: expected 1 or more"),
     (["-D", "nokey"], "-D nokey: expected KEY=VALUE"),
     (["-D", "radar:config.x=1"], "-D radar:config.x=1: unknown application 'radar'"),
-    (["--stats-dir", "no/such/folder"], "--stats-dir no/such/folder: no such folder 'no/such/folder'"),
+    (["--stats-dir", "no/such/folder"], "--stats-dir no/such/folder: no such folder"),
     (["--stats-dir", "radar:."], "--stats-dir radar:.: unknown application 'radar'"),
 ])
 def test_bad_input_is_one_line_and_exit_code_2(args: list[str], message: str, tmp_path: Path) -> None:
@@ -227,7 +228,7 @@ def test_list_names_all_eight_applications() -> None:
 
 
 def test_list_into_a_pipe_nobody_reads_ends_quietly() -> None:
-    """``automotive-launch --list | head -1``: the reader is gone before the list is written (its end closed first,
+    """``automotive launch --list | head -1``: the reader is gone before the list is written (its end closed first,
     so the write fails every time): exit code 0, no traceback."""
     read_end, write_end = os.pipe()
     os.close(read_end)

@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 import automotive
+from automotive import command
 
 PACKAGE = Path(automotive.__file__).resolve().parent
 CYCLONE = PACKAGE / "cyclone"
@@ -63,10 +64,18 @@ PROGRAMS = sorted(f"automotive.{folder}.{path.stem}" for folder in ("apps", "too
 
 SCRIPTS = {entry.name: entry.value for entry in importlib.metadata.distribution("automotive-databus").entry_points
            if entry.group == "console_scripts"}
+# Helpers that are programs for maintainers only (python -m ...), on no user's PATH.
+INTERNAL = {"automotive.tools.make_scene_data", "automotive.tools.delay_relay"}
 
 
 @pytest.mark.parametrize("module", PROGRAMS)
-def test_every_program_has_main_with_argv_and_a_console_script(module: str) -> None:
+def test_every_program_has_main_with_argv_and_a_command(module: str) -> None:
     main = importlib.import_module(module).main
     assert "argv" in main.__code__.co_varnames[:main.__code__.co_argcount], module
-    assert f"{module}:main" in SCRIPTS.values(), f"{module} has no console script in pyproject.toml"
+    commands = {entry.module for table in (command.TOOLS, command.APPS, command.BENCHMARKS) for entry in table.values()}
+    if module in INTERNAL:
+        assert module not in commands and f"{module}:main" not in SCRIPTS.values()
+    else:
+        assert module in commands, f"{module} is no subcommand of automotive (automotive/command.py)"
+    if module.startswith("automotive.apps."):
+        assert f"{module}:main" in SCRIPTS.values(), f"{module} has no console script in pyproject.toml"

@@ -4,8 +4,8 @@ Each test drives a piece of the runtime through thousands of events in-process (
 counted; vision samples written and taken; status events: matches, unmatches, liveliness), after a warm-up that
 fills every cache, and then checks that the live objects of the project's own types are the same in number, and
 that the Python heap (tracemalloc) and glibc's blocks in use (Cyclone's allocations) grew by less than a small
-bound that a per-event leak of a few bytes would exceed. automotive-bench-soak measures the same over time on the
-whole system (automotive-bench-soak).
+bound that a per-event leak of a few bytes would exceed. automotive bench soak measures the same over time on the
+whole system (automotive bench soak).
 """
 
 from __future__ import annotations

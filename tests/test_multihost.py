@@ -261,7 +261,7 @@ def test_lan_multicast_with_the_launcher_on_each_host(hosts: TwoHosts, tmp_path:
     a, b = hosts.a, hosts.b
     for host in (a, b):
         must("ip", "-n", host.namespace, "link", "set", host.device, "multicast", "on")
-    launch = [str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
+    launch = [str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background", "-v",
               "--domain", str(hosts.domain_id)]
     on_a = hosts.start(a, "launch", [*launch, "--interface", a.device, "--log-dir", str(tmp_path / "a"),
                                      "vision", "sensor_fusion", "vehicle_platform"])
@@ -313,7 +313,7 @@ def test_a_late_rti_participant_on_another_host_finds_every_application_with_uni
         hosts: TwoHosts, tmp_path: Path) -> None:
     """The whole system on A in peers mode, an RTI participant on B (initial peers: A) joining it late."""
     launcher = hosts.start(hosts.a, "launch", [
-        str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
+        str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background", "-v",
         "--domain", str(hosts.domain_id), "--peers", PEERS, "--log-dir", str(tmp_path / "a")])
     late_rti_participant(hosts, launcher, "--initial-peers", ADDRESS_A)
     hosts.assert_no_cyclone_lines()
@@ -325,6 +325,6 @@ def test_a_late_rti_participant_on_another_host_finds_every_application_on_a_mul
     for host in (hosts.a, hosts.b):
         must("ip", "-n", host.namespace, "link", "set", host.device, "multicast", "on")
     launcher = hosts.start(hosts.a, "launch", [
-        str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background",
+        str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background", "-v",
         "--domain", str(hosts.domain_id), "--interface", hosts.a.device, "--log-dir", str(tmp_path / "a")])
     late_rti_participant(hosts, launcher, "--lan")

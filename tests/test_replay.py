@@ -208,7 +208,7 @@ def test_bad_recordings_are_one_line(apps, domain_id: int, tmp_path: Path, make:
     result = apps.run("replay", str(make(tmp_path)), "--domain", str(domain_id), timeout=TIMEOUT)
     assert result.returncode == 2, result.stdout + result.stderr
     assert len(result.stderr.strip().splitlines()) == 1, result.stderr
-    assert re.search(rf"^replay: .*{message}", result.stderr), result.stderr
+    assert re.search(rf"^automotive replay: .*{message}", result.stderr), result.stderr
 
 
 def truncated(tmp_path: Path) -> Path:
@@ -227,5 +227,5 @@ def test_bad_options_are_one_line(apps, domain_id: int, tmp_path: Path) -> None:
                           (["--start", "5", "--end", "1"], r"--end 1 is before --start 5")):
         result = apps.run("replay", str(tmp_path / "ok.mcap"), "--domain", str(domain_id), *args, timeout=TIMEOUT)
         assert result.returncode == 2, result.stdout + result.stderr
-        assert re.search(rf"^replay: {message}", result.stderr), result.stderr
+        assert re.search(rf"^automotive replay: {message}", result.stderr), result.stderr
         assert len(result.stderr.strip().splitlines()) == 1, result.stderr

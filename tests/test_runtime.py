@@ -85,7 +85,7 @@ def test_network_configurations() -> None:
     assert "PruneDelay=" not in xml and "<InitialLocatorPruneDelay>inf<" in xml
     # RTI answers a participant of its own host through 127.0.0.1: Cyclone must not drop what arrives on lo
     assert "<ExtendedPacketInfo>false</ExtendedPacketInfo>" in xml
-    assert "<MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>" in xml
+    assert "<MaxAutoParticipantIndex>29</MaxAutoParticipantIndex>" in xml
     assert "<SPDPInterval>1s</SPDPInterval>" in xml
     # without an interface, the one on the route to the first other host
     unnamed = NetworkConfig.from_settings(peers=["10.0.0.2"])
@@ -207,14 +207,16 @@ def test_an_application_says_when_it_sees_no_peer(apps, domain_id: int) -> None:
 
 
 @pytest.mark.parametrize("args,message", [
-    (["-D", "config.domainId=abc"], r"^hmi: -D: config.domainId = 'abc' is not an integer$"),
-    (["-D", "config.domainId=999"], r"^hmi: -D: config.domainId = 999 is out of range \(expected 0..232\)$"),
-    (["-D", "qos.Alerts.Profile=Nope"], r"^hmi: .*automotive_qos.xml: no QoS profile 'AutomotiveLibrary::Nope'"),
-    (["-D", "qos.File=/nonexistent/qos.xml"], r"^hmi: /nonexistent/qos.xml: QoS file not found$"),
-    (["-D", "config.typo=1"], r"^hmi: .*hmi.properties: unknown key\(s\) for hmi: 'config.typo' \(-D\)$"),
-    (["--properties", "/nonexistent/hmi.properties"], r"^hmi: /nonexistent/hmi.properties: properties file not found$"),
-    (["--peers", "bad host!"], r"^hmi: .*peer 'bad host!' is not a host name or IP address$"),
-    (["--count", "-1"], r"^hmi: --count -1: expected 0 \(forever\) or a positive number$"),
+    (["-D", "config.domainId=abc"], r"^automotive-hmi: -D: config.domainId = 'abc' is not an integer$"),
+    (["-D", "config.domainId=999"], r"^automotive-hmi: -D: config.domainId: expected a domain id 0..231, not '999'$"),
+    (["-D", "qos.Alerts.Profile=Nope"],
+     r"^automotive-hmi: .*automotive_qos.xml: no QoS profile 'AutomotiveLibrary::Nope'"),
+    (["-D", "qos.File=/nonexistent/qos.xml"], r"^automotive-hmi: /nonexistent/qos.xml: QoS file not found$"),
+    (["-D", "config.typo=1"], r"^automotive-hmi: .*hmi.properties: unknown key\(s\) for hmi: 'config.typo' \(-D\)$"),
+    (["--properties", "/nonexistent/hmi.properties"],
+     r"^automotive-hmi: /nonexistent/hmi.properties: properties file not found$"),
+    (["--peers", "bad host!"], r"^automotive-hmi: .*peer 'bad host!' is not a host name or IP address$"),
+    (["--count", "-1"], r"^automotive-hmi: --count -1: expected 0 \(forever\) or a positive number$"),
 ])
 def test_bad_input_is_one_line_and_exit_2(apps, args: list[str], message: str) -> None:  # type: ignore[no-untyped-def]
     result = apps.run("hmi", "--ui", "console", *args)

@@ -62,7 +62,7 @@ def test_collision_alert_data_flow(apps, domain_id: int, tmp_path: Path) -> None
     apps.start("vision", *domain, *FAST, "-D", f"dataFile={scene(tmp_path / 'scene.csv')}")
 
     hmi.wait_for(r"DRIVER ALERT: Driver attention required")
-    hmi.wait_for(r"hmi: all clear")
+    hmi.wait_for(r"hmi debug: all clear")
     avoidance.wait_for(r"ALERT: driver attention needed")
     avoidance.wait_for(r"all clear: no object taller than 2.0 m")
     # commands follow the first object: the car (speed = velocity[0], steer = position[0], blinker = 5 % 4 = LEFT)
@@ -146,12 +146,12 @@ def test_killed_collision_avoidance_loses_liveliness_and_recovers(apps, domain_i
     records = tmp_path / "hmi.jsonl"
     hmi = apps.start("hmi", "--ui", "console", *common, "--stats", str(records))
     avoidance = apps.start("collision_avoidance", *common)
-    hmi.wait_for(r"\[AlertTopic\] liveliness regained")
+    hmi.wait_for(r"\[AlertTopic\] reader matched a writer")
     avoidance.stop(signal.SIGKILL)
     hmi.wait_for(r"alert source LOST", timeout=20)
     apps.start("collision_avoidance", *common)
     hmi.wait_for(r"alert source back: the alert writer's liveliness was regained", timeout=20)
-    # what the driver was told, as status records (automotive-bench-soak counts the losses)
+    # what the driver was told, as status records (automotive bench soak counts the losses)
     assert [record["alive"] for record in stats.read(records, "source")] == [False, True]
 
 

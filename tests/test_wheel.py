@@ -82,38 +82,47 @@ def test_the_wheel_holds_one_package_with_its_configuration(installed: Installat
 
 
 @pytest.mark.parametrize("script", SCRIPTS)
-def test_every_console_script_answers_help(installed: Installation, script: str) -> None:
+def test_every_console_script_answers_help_and_version(installed: Installation, script: str) -> None:
     result = installed.run(script, "--help")
     assert result.returncode == 0 and "usage:" in result.stdout, result.stdout + result.stderr
+    version = installed.run(script, "--version")
+    assert version.returncode == 0 and "Cyclone DDS Python" in version.stdout, version.stdout + version.stderr
+
+
+def test_the_command_reaches_a_benchmark_and_an_application(installed: Installation) -> None:
+    bench = installed.run("automotive", "bench", "soak", "--help")
+    assert bench.returncode == 0 and bench.stdout.startswith("usage: automotive bench soak"), bench.stdout
+    app = installed.run("automotive", "run", "lidar", "--help")
+    assert app.returncode == 0 and app.stdout.startswith("usage: automotive run lidar"), app.stdout
 
 
 def test_the_configuration_export_is_a_usable_copy(installed: Installation, domain_id: int) -> None:
     folder = installed.home / "my-config"
-    export = installed.run("automotive-config", "export", str(folder))
+    export = installed.run("automotive", "config", "export", str(folder))
     assert export.returncode == 0, export.stderr
     for name in ("properties/vision.properties", "properties/data/vision.csv", "qos/automotive_qos.xml",
                  "idl/automotive.idl"):
         assert (folder / name).is_file(), name
-    again = installed.run("automotive-config", "export", str(folder))
+    again = installed.run("automotive", "config", "export", str(folder))
     assert again.returncode == 2 and again.stderr.count("\n") == 1 and "--overwrite" in again.stderr
     # The copy is the one used: its own sensor id and its own (relative) QoS and data files.
     properties = folder / "properties" / "vision.properties"
     properties.write_text(properties.read_text().replace("config.sensorId=1", "config.sensorId=9"))
     vision = installed.run("automotive-vision", "--properties", str(properties), "--domain", str(domain_id),
-                           "--count", "2", "-D", "config.pubInterval=10")
+                           "--count", "2", "-D", "config.pubInterval=10", "-v")
     assert vision.returncode == 0, vision.stdout + vision.stderr
     assert "vision sensor 9:" in vision.stdout and vision.stdout.count("published sample") == 2, vision.stdout
 
 
 def test_the_launcher_runs_the_system_from_an_empty_folder(installed: Installation, domain_id: int) -> None:
     runner = AppRunner(installed.home)
-    launcher = runner.start_command("automotive-launch", [
-        str(installed.bin / "automotive-launch"), "--mode", "background", "--domain", str(domain_id),
+    launcher = runner.start_command("automotive launch", [
+        str(installed.bin / "automotive"), "launch", "--mode", "background", "--domain", str(domain_id),
         "vision", "sensor_fusion", "collision_avoidance", "hmi", "-D", "collision_avoidance:config.alertSize=1.0"],
         env={**installed.env, "DISPLAY": "", "WAYLAND_DISPLAY": ""})
     try:
         launcher.wait_for(r"4 application\(s\) running", timeout=60)
-        launcher.wait_for(r"^hmi\s+\| .*DRIVER ALERT: Driver attention required", timeout=60)
+        launcher.wait_for(r"^hmi\s+\| .*!!! DRIVER ALERT !!!", timeout=60)  # the HMI's console box
         launcher.process.send_signal(signal.SIGINT)
         assert launcher.wait_exit(timeout=30) == 0, launcher.output[-3000:]
         summary = (installed.home / "logs" / "launch-summary.txt").read_text()

@@ -66,7 +66,7 @@ def test_certificate_script_refuses_a_bad_site_name_in_one_line(tmp_path: Path) 
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert result.stderr.strip().splitlines() == [
-        "automotive-zenoh-certs: site name 'site a': expected letters, digits, '.' and '-'"]
+        "automotive zenoh-certs: site name 'site a': expected letters, digits, '.' and '-'"]
 
 
 def test_configuration_scouts_nothing_and_uses_mutual_tls(certificates: Path) -> None:
@@ -105,7 +105,7 @@ def test_plain_tcp_only_when_the_properties_say_so(certificates: Path) -> None:
     ({"zenoh_listen": ""}, r"neither zenoh.listen nor zenoh.connect"),
     ({"zenoh_site": "site/a"}, r"zenoh.site = 'site/a' is not a site name"),
     ({"zenoh_tls_key": "/nonexistent/site-a.key"}, r"zenoh.tls.key = /nonexistent/site-a.key: no such file "
-                                                   r"\(make them with automotive-zenoh-certs"),
+                                                   r"\(make them with automotive zenoh-certs"),
     ({"zenoh_mode": "client"}, r"zenoh.mode = 'client' is not one of router, peer"),
 ])
 def test_bad_link_settings(certificates: Path, values: dict[str, str], pattern: str) -> None:
@@ -227,13 +227,14 @@ def test_zenoh_log_lines_become_one_line_reports() -> None:
 def test_bad_bridge_input(apps, certificates: Path, args: list[str], pattern: str) -> None:  # type: ignore[no-untyped-def]
     tls = ["-D", f"zenoh.tls.ca={certificates}/ca.pem", "-D", f"zenoh.tls.certificate={certificates}/site-a.pem",
            "-D", f"zenoh.tls.key={certificates}/site-a.key"]
-    assert_one_line_error(apps.run("zenoh_bridge", *tls, *args), rf"^zenoh_bridge: .*{pattern}")
+    assert_one_line_error(apps.run("zenoh_bridge", *tls, *args), rf"^automotive zenoh-bridge: .*{pattern}")
 
 
 def test_missing_certificates_are_one_line_with_the_remedy(apps) -> None:  # type: ignore[no-untyped-def]
     result = apps.run("zenoh_bridge", "-D", "zenoh.tls.ca=/nonexistent/ca.pem")
-    assert_one_line_error(result, r"^zenoh_bridge: .*zenoh.tls.ca = /nonexistent/ca.pem: no such file \(make them "
-                                  r"with automotive-zenoh-certs")
+    assert_one_line_error(result, r"^automotive zenoh-bridge: .*zenoh.tls.ca = /nonexistent/ca.pem: no such file "
+                                  r"\(make them "
+                                  r"with automotive zenoh-certs")
 
 
 def test_listen_address_in_use_is_one_line(apps, domain_id: int, certificates: Path) -> None:  # type: ignore[no-untyped-def]
@@ -247,7 +248,8 @@ def test_listen_address_in_use_is_one_line(apps, domain_id: int, certificates: P
                           "-D", f"zenoh.tls.ca={certificates}/ca.pem",
                           "-D", f"zenoh.tls.certificate={certificates}/site-a.pem",
                           "-D", f"zenoh.tls.key={certificates}/site-a.key")
-    assert_one_line_error(result, rf"^zenoh_bridge: .*cannot open the Zenoh link \(.*tls/127.0.0.1:{port}.*\): ")
+    assert_one_line_error(result,
+                          rf"^automotive zenoh-bridge: .*cannot open the Zenoh link \(.*tls/127.0.0.1:{port}.*\): ")
     assert re.search(r"[Aa]ddress (already )?in use|[Cc]an not create", result.stderr), result.stderr
 
 
@@ -272,12 +274,12 @@ def test_without_the_fast_paths_the_bridge_runs_and_says_liveliness_is_not_carri
 
 
 @pytest.mark.parametrize("program,args,pattern", [
-    ("zenoh_certs", ["certs"], r"^automotive-zenoh-certs: the following arguments are required: SITE"),
-    ("zenoh_certs", ["certs", "site-a", "--days", "0"], r"^automotive-zenoh-certs: --days 0: expected a positive"),
-    ("zenoh_certs", ["certs", "site-a=10.0.0.2,bad host"], r"^automotive-zenoh-certs: site site-a: 'bad host' is not "
+    ("zenoh_certs", ["certs"], r"^automotive zenoh-certs: the following arguments are required: SITE"),
+    ("zenoh_certs", ["certs", "site-a", "--days", "0"], r"^automotive zenoh-certs: --days 0: expected a positive"),
+    ("zenoh_certs", ["certs", "site-a=10.0.0.2,bad host"], r"^automotive zenoh-certs: site site-a: 'bad host' is not "
                                                             r"an IP address or host name$"),
-    ("delay_relay", ["--listen", "nowhere", "--target", "127.0.0.1:1"], r"^automotive-delay-relay: argument --listen: "
-                                                                         r"'nowhere' is not HOST:PORT"),
+    ("delay_relay", ["--listen", "nowhere", "--target", "127.0.0.1:1"],
+     r"^python -m automotive.tools.delay_relay: argument --listen: 'nowhere' is not HOST:PORT"),
 ])
 def test_the_link_tools_refuse_bad_arguments_in_one_line(tmp_path: Path, program: str, args: list[str],
                                                          pattern: str) -> None:

@@ -15,7 +15,9 @@ from typing import Any
 
 from cyclonedds.core import DDSException
 
+from automotive.bus import console
 from automotive.bus.app import Application, run
+from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
 from automotive.sim.lfsr import FramePattern
 from automotive.wire import shm
@@ -25,6 +27,10 @@ from automotive.wire.camera import (
     frame_type,
     tune_process_for_large_frames,
 )
+
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of("config.ddsId", "config.pubInterval", "config.imageSize", "config.waitSubscribers",
+                               "config.transport", "config.shmPrefix", roles=["Camera"])
 
 ACK_TIMEOUT_S = 10.0  # at the end: how long reliable readers get to acknowledge the last frames
 
@@ -92,6 +98,8 @@ def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], i
     size = writer.codec.size
     written = 0
     every_second, window_frames = Every(), 0
+    app.status_figure = lambda: f"{written} frames of {size} bytes published"
+    topic = app.topic_name("Camera", "CameraImageData")
     for seqnum in app.periodic(interval_s):
         try:
             write(camera_id, seqnum)
@@ -100,10 +108,11 @@ def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], i
             continue
         written += 1
         window_frames += 1
+        console.traffic.count_out(topic)  # frames bypass the checked writer: counted here
         elapsed = every_second.due()
         if elapsed is not None:
             rate = window_frames / elapsed
-            app.log.info("published %d frames: %.1f frames/s, %.1f MB/s", written, rate, rate * size / 1e6)
+            app.log.debug("published %d frames: %.1f frames/s, %.1f MB/s", written, rate, rate * size / 1e6)
             window_frames = 0
 
     acknowledged = writer.writer.wait_for_acks(int(ACK_TIMEOUT_S * 1e9)) if written else True
@@ -113,7 +122,7 @@ def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], i
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("camera_pub", __doc__ or "", body, argv)
+    return run("camera_pub", __doc__ or "", body, argv, keys=PROPERTY_KEYS)
 
 
 if __name__ == "__main__":

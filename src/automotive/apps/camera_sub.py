@@ -23,10 +23,12 @@ from typing import Any
 
 from cyclonedds.core import GuardCondition, WaitSet
 
+from automotive.bus import console
 from automotive.bus.app import Application, run
 from automotive.bus.badsamples import BadSample
-from automotive.bus.errors import ConfigError
+from automotive.bus.cli import output_file
 from automotive.bus.latency import LatencyHistogram
+from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every, Stats
 from automotive.sim.lfsr import FramePattern
 from automotive.wire import shm
@@ -37,6 +39,9 @@ from automotive.wire.camera import (
     frame_type,
     tune_process_for_large_frames,
 )
+
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of("config.imageSize", "config.transport", "config.shmPrefix", roles=["Camera"])
 
 TAKE_LIMIT = 16  # samples per take: a burst is handled in one call without holding many frames at once
 
@@ -133,7 +138,7 @@ class CameraStats:
                 stats.record("window", samples=window.samples, size=self.size, seconds=round(elapsed, 6),
                              latency_ms=window.latency_ms(), mb_per_s=window.bytes / elapsed / 1e6 if elapsed else 0.0,
                              mismatches=window.mismatches, gaps=window.gaps)
-            log.info("samples=%d size=%d latency_ms(min/avg/max)=%s MB/s=%.1f mismatches=%d gaps=%d",
+            log.debug("samples=%d size=%d latency_ms(min/avg/max)=%s MB/s=%.1f mismatches=%d gaps=%d",
                      window.samples, self.size, window.latency_ms(), window.bytes / elapsed / 1e6 if elapsed else 0.0,
                      window.mismatches, window.gaps)
         self.window = Window()
@@ -206,26 +211,32 @@ def write_plot(path: Path, stats: CameraStats, title: str) -> None:
     histogram.set_title("latency histogram")
     figure.suptitle(title)
     figure.tight_layout()
-    figure.savefig(path, dpi=100)
+    # The format named: without a suffix matplotlib would write FILE.png instead of FILE.
+    figure.savefig(path, dpi=100, format=path.suffix[1:].lower() or "png")
     plt.close(figure)
 
 
-def check_plot_path(path: Path | None) -> None:
-    if path is None:
-        return
-    if not path.parent.resolve().is_dir():
-        raise ConfigError(f"--plot {path}: folder {path.parent} does not exist")
+def plot_file(text: str) -> Path:
+    """An argparse type: --plot FILE, checked when the command line is read, before anything starts (the plot is
+    written on exit, so a run of an hour must not end in a traceback): its folder takes new files, matplotlib is
+    installed and writes the format the suffix names (none: PNG)."""
+    path = output_file(text)
     try:
-        import matplotlib  # noqa: F401
+        from matplotlib.backend_bases import FigureCanvasBase
     except ImportError:
-        raise ConfigError("--plot needs matplotlib (pip install matplotlib)") from None
+        raise argparse.ArgumentTypeError(f"{text}: needs matplotlib (pip install matplotlib)") from None
+    formats = FigureCanvasBase.get_supported_filetypes()
+    suffix = path.suffix[1:].lower()
+    if suffix and suffix not in formats:
+        raise argparse.ArgumentTypeError(f"{text}: matplotlib writes no '.{suffix}' files (it writes "
+                                         f"{', '.join(sorted(formats))})")
+    return path
 
 
 def body(app: Application) -> None:
     data_type = frame_type(app.props.get_str("config.imageSize", "full"), f"{app.props.source}: config.imageSize")
     size = frame_size(data_type)
     plot_path: Path | None = app.args.plot
-    check_plot_path(plot_path)
     exit_with_publisher: bool = app.args.exit_with_publisher
     memory = shm.open_for(app.props, app.name, app.domain_id, app.topic_name("Camera", "CameraImageData"), app.log)
     if memory is not None:
@@ -274,6 +285,8 @@ def view_shared_memory(app: Application, memory: shm.SharedMemory, data_type: ty
 def show(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups: Iterator[bool],
          pattern: FramePattern, stats: CameraStats, plot_path: Path | None, data_type: type[Any]) -> None:
     """Verify frames until stopped, then print the totals and write the plot."""
+    app.status_figure = lambda: (f"{stats.total.samples} frames, latency p50 {stats.percentile_ms(0.5) or 0:.1f} ms, "
+                                 f"{stats.total.gaps} gap(s), {stats.total.mismatches} mismatch(es)")
     view(app, frames, wake_ups, pattern, stats)
     size = stats.size
     stats.report_window(app.log, force=True, stats=app.stats)
@@ -302,12 +315,14 @@ def view(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups
                                     "bytes differ", "the publisher's LFSR pattern for the frame's seqnum"),
                           frame.writer, action="counted as a mismatch")
 
+    topic = app.topic_name("Camera", "CameraImageData")
     for leaving in wake_ups:
         while app.running:  # take until the reader is empty
             with frames.take(TAKE_LIMIT) as batch:  # the frames' data are views, valid inside this block
                 if not batch:
                     break
                 receive_ns = time.time_ns()
+                console.traffic.count_in(topic, len(batch))  # frames bypass the checked reader: counted here
                 for frame in batch:
                     stats.received(frame, receive_ns, app.log, pattern, mismatch)
                     app.tick()
@@ -320,7 +335,7 @@ def view(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--plot", type=Path, default=None, metavar="FILE",
+    parser.add_argument("--plot", type=plot_file, default=None, metavar="FILE",
                         help="write a PNG of latency over time and its histogram on exit (keeps 16 bytes a frame "
                              "in memory until then)")
     parser.add_argument("--exit-with-publisher", action="store_true",
@@ -328,7 +343,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("camera_sub", __doc__ or "", body, argv, add_arguments)
+    return run("camera_sub", __doc__ or "", body, argv, add_arguments, keys=PROPERTY_KEYS)
 
 
 if __name__ == "__main__":

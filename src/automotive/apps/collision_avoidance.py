@@ -27,10 +27,15 @@ from automotive.bus.app import Application, run
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.clock import now_timestamp, timestamp_of
 from automotive.bus.ownership import OwnerTracker, StallGuard
+from automotive.bus.properties import PropertyKeys
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import IndicatorStatusEnum
 from automotive.types.Platform import PlatformControl, PlatformStatus
 from automotive.types.Sensor import SensorObjectList
+
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of("config.alertSize",
+                                roles=["SensorObjects", "PlatformStatus", "Alerts", "PlatformControl"])
 
 ALL_CLEAR = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False, backCollision=False,
                          parkingCollision=False, driverAttention=False)
@@ -116,6 +121,9 @@ def body(app: Application) -> None:
         objects_reader.use_views()
     status_reader = app.reader("PlatformStatus", PlatformStatus, "PlatformStatus")
     alert_writer = app.writer("Alerts", DriverAlerts, "AlertTopic")
+    # Said once at start (transient local: an HMI that joins later gets it too), so that the HMI shows "all clear"
+    # because a live collision avoidance says so, not because it heard nothing.
+    alert_writer.write(ALL_CLEAR, timestamp=time.time_ns())
     control_writer = app.writer("PlatformControl", PlatformControl, "PlatformControl")
     topics = {"objects": objects_reader.topic.get_name(), "alerts": alert_writer.topic.get_name(),
               "commands": control_writer.topic.get_name()}
@@ -125,6 +133,9 @@ def body(app: Application) -> None:
 
     alert_active = False
     status_count = 0
+    last_command: list[str] = []
+    app.status_figure = lambda: (f"alert: {'DRIVER ATTENTION' if alert_active else 'none'}"
+                                 + (f"; {last_command[0]}" if last_command else "; no command yet"))
     for _ in app.wake_ups(app.waitset(objects_reader, status_reader)):
         status_count += len(status_reader.take(N=1000))  # read, and otherwise ignored, as in the original
         commands.follow_owner()
@@ -159,15 +170,16 @@ def body(app: Application) -> None:
             command = command_for(objects, sample_id, stamp)
             control_writer.write(command, timestamp=stamp)
             app.stats.record("write", topic=topics["commands"], src=stamp, inputs=[source], sample_id=sample_id)
-            app.log.info("command %d: speed %.2f, steer %.2f, blinker %s (%d objects, %d status samples read)",
-                         sample_id, command.speed, command.vehicleSteerAngle, command.blinkerStatus.name,
-                         len(objects.objects), status_count)
+            app.log.debug("command %d: speed %.2f, steer %.2f, blinker %s (%d objects, %d status samples read)",
+                          sample_id, command.speed, command.vehicleSteerAngle, command.blinkerStatus.name,
+                          len(objects.objects), status_count)
+            last_command[:] = [f"command {sample_id}: speed {command.speed:.2f}, steer {command.vehicleSteerAngle:.2f}"]
             app.stats.record("command", sample_id=sample_id)
             app.tick()
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("collision_avoidance", __doc__ or "", body, argv)
+    return run("collision_avoidance", __doc__ or "", body, argv, keys=PROPERTY_KEYS)
 
 
 if __name__ == "__main__":

@@ -23,10 +23,16 @@ from automotive.bus.badsamples import BadSample
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.clock import now_seconds_nanoseconds
 from automotive.bus.errors import ConfigError
+from automotive.bus.properties import PropertyKeys
 from automotive.sim.scene import LidarScene, ScanGrid
 from automotive.types.automotive import ShapeType
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.wire.pointcloud import FRAME_ID
+
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of("config.azimStart", "config.azimRange", "config.azimSteps", "config.polarStart",
+                               "config.polarRange", "config.polarSteps", "config.pubInterval", "config.noise",
+                               "config.logEvery", "config.frameId", roles=["Lidar", "Shapes"])
 
 # Each circle costs a ray-casting step per frame: a writer inventing colours must not make frames slower without end
 # (Shapes Demo has eight colours). A circle beyond this many is reported and left out until one leaves.
@@ -121,6 +127,8 @@ def body(app: Application) -> None:
 
     render_s = write_s = 0.0
     frames = 0  # since the last log line
+    app.status_figure = lambda: (f"{grid.point_count} points, {len(scene.spheres)} sphere(s)"
+                                 + (f" {','.join(sphere.color for sphere in scene.spheres)}" if scene.spheres else ""))
     for frame in app.periodic(interval_ms / 1000):
         tracker.apply(take_all(circles))
         sec, nanosec = now_seconds_nanoseconds()
@@ -135,15 +143,15 @@ def body(app: Application) -> None:
         app.stats.record("frame", number=frame)
         if log_every and (frame == 1 or frame % log_every == 0):
             spheres = [sphere.color for sphere in scene.spheres]
-            app.log.info("frame %d: %d points, %d sphere(s)%s, render %.2f ms, write %.2f ms (mean of %d)",
-                         frame, grid.point_count, len(spheres), f" {','.join(spheres)}" if spheres else "",
+            app.log.debug("frame %d: %d points, %d sphere(s)%s, render %.2f ms, write %.2f ms (mean of %d)",
+                          frame, grid.point_count, len(spheres), f" {','.join(spheres)}" if spheres else "",
                          render_s * 1e3 / frames, write_s * 1e3 / frames, frames)
             render_s = write_s = 0.0
             frames = 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("lidar", __doc__ or "", body, argv)
+    return run("lidar", __doc__ or "", body, argv, keys=PROPERTY_KEYS)
 
 
 if __name__ == "__main__":

@@ -30,10 +30,14 @@ from automotive.bus.app import Application, run
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.clock import timestamp_of
 from automotive.bus.ownership import StallGuard
+from automotive.bus.properties import PropertyKeys
 from automotive.cyclone.codecs import codec_for
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE, SensorObjectList
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.types.Vision import VisionSensor
+
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of("config.mode", "config.pubInterval", roles=["Vision", "Lidar", "SensorObjects"])
 
 SENSOR_OBJECT = codec_for(SensorObjectList).element_dtype("objects")  # type: ignore[union-attr]
 # What a vision object gives a sensor object; the rest is zero: amplitude 0, rangeMode RANGE_NONE, rangeRate 0.
@@ -66,7 +70,7 @@ def log_lidar_stamps(app: Application, lidar: DataReader[PointCloud2_]) -> None:
     for cloud in lidar.take(N=64):
         if isinstance(cloud, PointCloud2_):
             stamp = cloud.header_.stamp_
-            app.log.info("lidar sample stamped %d.%09d: %d points", stamp.sec_, stamp.nanosec_,
+            app.log.debug("lidar sample stamped %d.%09d: %d points", stamp.sec_, stamp.nanosec_,
                          cloud.width_ * cloud.height_)
 
 
@@ -83,6 +87,9 @@ def body(app: Application) -> None:
     app.log.info("sensor fusion: %s mode, every %.0f ms", mode, interval_s * 1000)
 
     pending: list[VisionSensor] = []
+    last = {"list": 0, "objects": 0, "sensors": ""}
+    app.status_figure = lambda: (f"list {last['list']}: {last['objects']} object(s) from sensor(s) {last['sensors']}"
+                                 if last["list"] else "no list published yet (no vision sample)")
     next_publish = time.monotonic() + interval_s
 
     def until_publish() -> float:
@@ -116,15 +123,16 @@ def body(app: Application) -> None:
         writer.write(SensorObjectList(timestamp=timestamp_of(stamp), objects=objects),  # type: ignore[arg-type]
                      timestamp=stamp)
         published = app.tick()
-        app.log.info("published list %d: %d object(s) from %d vision sample(s) of sensor(s) %s",
-                     published, len(objects), len(pending), ",".join(map(str, sensors)))
+        app.log.debug("published list %d: %d object(s) from %d vision sample(s) of sensor(s) %s",
+                      published, len(objects), len(pending), ",".join(map(str, sensors)))
+        last.update(list=published, objects=len(objects), sensors=",".join(map(str, sensors)))
         app.stats.record("list", number=published, objects=len(objects), samples=len(pending), sensors=sensors,
                          src=stamp, inputs=[sample.sample_info.source_timestamp for sample in pending])
         pending.clear()
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("sensor_fusion", __doc__ or "", body, argv)
+    return run("sensor_fusion", __doc__ or "", body, argv, keys=PROPERTY_KEYS)
 
 
 if __name__ == "__main__":

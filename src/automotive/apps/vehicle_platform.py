@@ -21,9 +21,13 @@ from typing import Any
 from automotive.bus.app import Application, run
 from automotive.bus.clock import format_timestamp, now_timestamp
 from automotive.bus.ownership import OwnerTracker
+from automotive.bus.properties import PropertyKeys
 from automotive.sim.csvdata import cycle_rows, load_platform_rows
 from automotive.types.Common import IndicatorStatusEnum
 from automotive.types.Platform import PlatformControl, PlatformStatus
+
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of("config.pubInterval", "dataFile", roles=["PlatformControl", "PlatformStatus"])
 
 
 def body(app: Application) -> None:
@@ -44,6 +48,9 @@ def body(app: Application) -> None:
 
     steer_angle = 0.0
     blinker = IndicatorStatusEnum.INDICATOR_OFF
+    speed_kmh: list[float] = []
+    app.status_figure = lambda: (f"{speed_kmh[0]:.1f} km/h, blinker {blinker.name}, steer {steer_angle:.2f}, last "
+                                 f"command {executed if executed is not None else 'none'}") if speed_kmh else ""
     topic = control_reader.topic.get_name()
     row_cycle = cycle_rows(rows)
     next_status = time.monotonic()  # the first status at once, then every interval
@@ -73,9 +80,9 @@ def body(app: Application) -> None:
                 continue
             executed = command.sample_id
             app.stats.record("command", sample_id=command.sample_id, owner=owner.owner_name)
-            app.log.info("command %d stamped %s: speed %.2f, steer %.2f, blinker %s", command.sample_id,
-                         format_timestamp(command.timestamp), command.speed, command.vehicleSteerAngle,
-                         IndicatorStatusEnum(command.blinkerStatus).name)
+            app.log.debug("command %d stamped %s: speed %.2f, steer %.2f, blinker %s", command.sample_id,
+                          format_timestamp(command.timestamp), command.speed, command.vehicleSteerAngle,
+                          IndicatorStatusEnum(command.blinkerStatus).name)
             steer_angle = command.vehicleSteerAngle
             blinker = IndicatorStatusEnum(command.blinkerStatus)
         now = time.monotonic()
@@ -87,12 +94,13 @@ def body(app: Application) -> None:
         status_writer.write(PlatformStatus(
             timestamp=now_timestamp(), vehSpd=row.vehSpd, blinkerStatus=blinker, posGasPedal=row.posGasPedal,
             velocity=row.velocity, yawRate=row.yawRate, vehicleSteerAngle=steer_angle))
-        app.log.info("status %d: %.1f km/h, blinker %s, steer %.2f", iteration, row.vehSpd, blinker.name, steer_angle)
+        app.log.debug("status %d: %.1f km/h, blinker %s, steer %.2f", iteration, row.vehSpd, blinker.name, steer_angle)
+        speed_kmh[:] = [row.vehSpd]
         app.stats.record("status", number=iteration)
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("vehicle_platform", __doc__ or "", body, argv)
+    return run("vehicle_platform", __doc__ or "", body, argv, keys=PROPERTY_KEYS)
 
 
 if __name__ == "__main__":

@@ -38,25 +38,26 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
 from automotive import config, cyclone
-from automotive.bus import badsamples, cyclonelog, memtune
+from automotive.bus import badsamples, console, cyclonelog, memtune
 from automotive.bus.cli import (
     EXIT_BAD_INPUT,
-    MAX_DOMAIN_ID,
     ArgumentParser,
     add_domain_option,
     add_network_options,
     add_override_option,
     add_stats_option,
+    command_name,
     dump_stacks_on_request,
     on_signals,
     stop_dumping_stacks,
 )
-from automotive.bus.contentfilter import TopicFilters
+from automotive.bus.contentfilter import FILTER_PREFIX, TopicFilters
 from automotive.bus.endpoints import Databus
 from automotive.bus.errors import ConfigError
 from automotive.bus.memtrace import start_from_environment as start_memory_probe
-from automotive.bus.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, user_uri
-from automotive.bus.properties import Properties
+from automotive.bus.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, read_user_config, user_uri
+from automotive.bus.ports import MAX_PARTICIPANTS, check_domain_id
+from automotive.bus.properties import Properties, PropertyKeys
 from automotive.bus.qos import QosProfiles, profile_name
 from automotive.bus.stats import Stats
 from automotive.bus.status import EventHook
@@ -68,6 +69,13 @@ DEFAULT_LIBRARY = "AutomotiveLibrary"
 # Redundant mode: an endpoint whose QoS profile P has a companion P + REDUNDANT_SUFFIX in the library uses it.
 REDUNDANT_SUFFIX = "Redundant"
 DEFAULT_OWNERSHIP_STRENGTH = 10
+# The property keys the runtime reads for every program (Application, its network, content filters; each endpoint
+# role adds topic.<Role> and qos.<Role>.Profile): with the program's own (``run``'s ``keys``), all it may be given.
+RUNTIME_KEYS = PropertyKeys.of(
+    "config.domainId", "qos.File", "qos.Library", "qos.Profile", "config.redundant", "config.instanceName",
+    "config.matchReport", "config.mallocTrim", "config.statusInterval", "config.badSampleReport", "config.network",
+    "config.interface", "config.peers", "config.maxParticipants", "config.largeData", "config.ownershipStrength",
+    families=[FILTER_PREFIX])
 
 ArgumentAdder = Callable[[argparse.ArgumentParser], None]
 
@@ -76,16 +84,27 @@ def default_properties_path(name: str) -> Path:
     return config.properties_file(name)
 
 
-def build_parser(name: str, description: str, add_arguments: ArgumentAdder | None = None) -> argparse.ArgumentParser:
-    parser = ArgumentParser(prog=name, description=description)
+def application_command(name: str) -> str:
+    """The console script of an application: ``sensor_fusion`` -> ``automotive-sensor-fusion``."""
+    return "automotive-" + name.replace("_", "-")
+
+
+def build_parser(name: str, description: str, add_arguments: ArgumentAdder | None = None,
+                 command: str | None = None) -> argparse.ArgumentParser:
+    """The program's parser; its usage and hints name it as the user typed it (``command``: its own command, by
+    default the application's console script)."""
+    parser = ArgumentParser(prog=command_name(command or application_command(name)), description=description)
     parser.add_argument("--properties", type=Path, default=None,
                         help=f"properties file (default: the shipped properties/{name}.properties; "
-                             "automotive-config export DIR writes an editable copy)")
+                             "automotive config export DIR writes an editable copy)")
     add_override_option(parser)
     parser.add_argument("--count", type=int, default=0, help="stop after N iterations (0: run until stopped)")
     add_domain_option(parser)
     add_network_options(parser)
     add_stats_option(parser)
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log every sample too (default: state changes and a status line every "
+                             f"{console.STATUS_INTERVAL_S:g} s)")
     parser.add_argument("--filter", dest="filters", action="append", default=[], metavar="TOPIC=EXPR",
                         help="content filter of the readers of TOPIC, e.g. \"Circle=color = 'RED' AND x < 100\" "
                              "(repeatable; config.filter.<TOPIC> in the properties)")
@@ -114,7 +133,10 @@ class Application:
             value = getattr(args, flag)
             if value is not None:
                 props.override([f"{key}={value}"], f"--{flag}")
-        self.domain_id = props.get_int("config.domainId", 0, minimum=0, maximum=MAX_DOMAIN_ID)
+        try:  # the same words as --domain's (automotive.bus.ports)
+            self.domain_id = check_domain_id(str(props.get_int("config.domainId", 0)))
+        except ValueError as error:
+            raise ConfigError(f"{props.where('config.domainId')}: config.domainId: {error}") from None
         self.library = props.get_str("qos.Library", DEFAULT_LIBRARY)
         self.profiles = QosProfiles(props.get_path("qos.File", str(config.qos_file())))
         # Redundant mode (hot-standby sensor_fusion and collision_avoidance, exclusive ownership): opt-in, because
@@ -130,6 +152,10 @@ class Application:
         # memory back to the kernel, so that a burst does not stay resident (automotive.bus.memtune.PeriodicTrim; 0
         # turns it off).
         self.malloc_trim_s = props.get_float("config.mallocTrim", memtune.TRIM_INTERVAL_S, minimum=0)
+        # Every this many seconds one status line: samples in and out per topic, and the application's key figure
+        # (``status_figure``); 0 turns it off.
+        self.status_interval_s = props.get_float("config.statusInterval", console.STATUS_INTERVAL_S, minimum=0)
+        self.status_figure: Callable[[], str] | None = None
         self.stats = Stats(getattr(args, "stats", None), self.instance_name)
         # Bad samples from the bus: one line per topic and kind, then a count every config.badSampleReport seconds.
         self.reporter = badsamples.configure(log, props.get_float("config.badSampleReport",
@@ -138,27 +164,34 @@ class Application:
             log.info("Cyclone's log sink is not reachable: samples Cyclone drops are logged by Cyclone, one line each")
         # Content filters of the readers, per topic (config.filter.<Topic>, --filter TOPIC=EXPR).
         self.filters = TopicFilters(props, getattr(args, "filters", []))
-        self.network = self._network_config()
-        if self.network is None:
-            log.info("network: CYCLONEDDS_URI from the environment")
-        else:
-            log.info("network: %s", self.network.describe())
+        self.network, notice = self._network_config()
+        log.info("network: %s", self.network.describe())
+        if notice is not None:
+            log.warning("%s", notice)
         self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, self.instance_name,
                            self.stats, self.reporter)
         self.guard = GuardCondition(self.bus.participant)
         self._ready = False
         self.iterations = 0
 
-    def _network_config(self) -> NetworkConfig | None:
-        explicit = any(key in self.props for key in ("config.network", "config.interface", "config.peers"))
+    def _network_config(self) -> tuple[NetworkConfig, str | None]:
+        """The network configuration, under the user's CYCLONEDDS_URI when one is set, and the line saying what that
+        URI replaces (automotive.bus.network). An explicit network choice (config.network, config.interface or
+        config.peers, from the properties or --network, --interface, --peers) wins over the URI's network."""
+        explicit = next((f"{key} ({self.props.where(key)})" for key in ("config.network", "config.interface",
+                                                                         "config.peers") if key in self.props), "")
         network = self.props.get_str("config.network", "")
         interface = self.props.get_str("config.interface", "")
         peers = self.props.get_list("config.peers", [])
-        max_participants = self.props.get_int("config.maxParticipants", DEFAULT_MAX_PARTICIPANTS, minimum=1)
+        max_participants = self.props.get_int("config.maxParticipants", DEFAULT_MAX_PARTICIPANTS, minimum=1,
+                                              maximum=MAX_PARTICIPANTS)
         large_data = self.props.get_bool("config.largeData", False)
-        if user_uri() is not None and not explicit:
-            return None
-        return NetworkConfig.from_settings(network, interface, peers, max_participants, large_data, self.props.source)
+        own = NetworkConfig.from_settings(network, interface, peers, max_participants, large_data, self.props.source)
+        uri = user_uri()
+        if uri is None:
+            return own, None
+        layering = own.layered(read_user_config(uri, self.domain_id), explicit)
+        return layering.network, layering.notice
 
     # -- endpoints ---------------------------------------------------------------------------------------------
     def topic_name(self, role: str, default: str) -> str:
@@ -203,6 +236,13 @@ class Application:
         """Called once set-up is done: a property the application never read is a mistake worth stopping for."""
         if self._ready:
             return
+        # The declaration's safety net: every key read must be declared, or a user could not set it (an unknown key
+        # is refused before the program starts: run).
+        undeclared = self.props.undeclared_reads()
+        if undeclared:
+            raise ConfigError(f"{self.name} reads property key(s) it does not declare: {', '.join(undeclared)} (a "
+                              "defect of the program: its declaration must name every key it reads)")
+        # A known key that this configuration never reads (config.ownershipStrength without an exclusive writer).
         unused = self.props.unused_keys()
         if unused:
             where = ", ".join(f"'{key}' ({self.props.where(key)})" for key in unused)
@@ -213,6 +253,8 @@ class Application:
         self.stats.record("ready")
         if self.match_report_s > 0:
             threading.Thread(target=self._report_unmatched, name="match-report", daemon=True).start()
+        if self.status_interval_s > 0:
+            threading.Thread(target=self._report_status, name="status-line", daemon=True).start()
         if self.malloc_trim_s > 0:
             memtune.PeriodicTrim(self.stop_event, self.malloc_trim_s).start()
 
@@ -225,6 +267,23 @@ class Application:
         if unmatched and len(unmatched) == len(self.bus.endpoints):
             self.log.warning("no peer seen after %g s: nothing matched on any topic (check the peers, the "
                              "interface, the domain id)", self.match_report_s)
+
+    def _report_status(self) -> None:
+        console.traffic.take_counts()  # what moved during set-up is not part of the first period
+        topics_in = [endpoint.topic.get_name() for endpoint in self.bus.endpoints if isinstance(endpoint, DataReader)]
+        topics_out = [endpoint.topic.get_name() for endpoint in self.bus.endpoints
+                      if isinstance(endpoint, DataWriter)]
+        last = time.monotonic()
+        while not self.stop_event.wait(self.status_interval_s):
+            now = time.monotonic()
+            parts = [console.traffic.rates(now - last, topics_in, topics_out)]
+            last = now
+            if self.status_figure is not None:
+                try:
+                    parts.append(self.status_figure())
+                except Exception as error:  # noqa: BLE001  (a figure that fails must not end the status line)
+                    parts.append(f"(figure failed: {error})")
+            self.log.info("status: %s", "; ".join(part for part in parts if part) or "idle")
 
     def tick(self) -> int:
         """Count one iteration of the application's work; stop once ``--count`` iterations are done."""
@@ -274,19 +333,6 @@ class Application:
         self.stats.close()
 
 
-def setup_logging(name: str) -> logging.Logger:
-    # Line-buffered output, so that a launcher or a test reading a pipe sees each line at once.
-    if hasattr(sys.stdout, "reconfigure"):
-        sys.stdout.reconfigure(line_buffering=True)  # type: ignore[union-attr]
-    handler = logging.StreamHandler(sys.stdout)
-    handler.setFormatter(logging.Formatter("%(asctime)s.%(msecs)03d %(name)s: %(message)s", "%H:%M:%S"))
-    log = logging.getLogger(name)
-    log.handlers[:] = [handler]
-    log.setLevel(logging.INFO)
-    log.propagate = False
-    return log
-
-
 def load_properties(name: str, args: argparse.Namespace) -> Properties:
     path = args.properties or default_properties_path(name)
     props = Properties.load(path)
@@ -295,13 +341,27 @@ def load_properties(name: str, args: argparse.Namespace) -> Properties:
 
 
 def run(name: str, description: str, body: Callable[[Application], None], argv: Sequence[str] | None = None,
-        add_arguments: ArgumentAdder | None = None) -> int:
-    """Parse the command line, build the application, run ``body`` and shut down; return the exit code."""
-    args = build_parser(name, description, add_arguments).parse_args(argv)
-    log = setup_logging(name)
+        add_arguments: ArgumentAdder | None = None, command: str | None = None,
+        keys: PropertyKeys | None = None) -> int:
+    """Parse the command line, build the application, run ``body`` and shut down; return the exit code.
+
+    ``command``: how a tool run through ``automotive`` is named (``automotive record``); an application's is its
+    console script (``automotive-vision``). ``keys``: the property keys the program reads beyond RUNTIME_KEYS; with
+    them, a key of the properties or of -D that it does not know is refused before anything starts."""
+    parser = build_parser(name, description, add_arguments, command)
+    args = parser.parse_args(argv)
+    app: Application | None = None
+    stdout_gone = False
+
+    def stop_reader_gone() -> None:  # stdout's reader left (``| head``): end as if asked to
+        nonlocal stdout_gone
+        stdout_gone = True
+        if app is not None:
+            app.stop()
+
+    log = console.setup_logging(name, args.verbose, stop_reader_gone)
     dump_stacks_on_request()  # SIGUSR1: where each thread is (the launcher asks before it kills a hung application)
     start_memory_probe(name)  # a diagnostic, only with AUTOMOTIVE_MEMTRACE set (automotive.bus.memtrace)
-    app: Application | None = None
 
     def stop_when_built(signum: int, frame: FrameType | None) -> None:
         # In the main thread, between two bytecodes: lock-free. Before the application exists nothing else stops the
@@ -317,12 +377,20 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
 
     restore_signals = on_signals((signal.SIGINT, signal.SIGTERM), stop_app, stop_when_built)
     try:
+        props = load_properties(name, args)
+        if keys is not None:  # an unknown key ends the program here, before it says or creates anything
+            props.declare(RUNTIME_KEYS | keys, name)
         cyclone.start(log)  # the fast paths, once, before any entity; or one line saying why they are off
-        app = Application(name, args, load_properties(name, args), log)
+        app = Application(name, args, props, log)
+        if stdout_gone:
+            app.stop()
         body(app)
         return 0
+    except BrokenPipeError:  # a print to a closed stdout (the HMI's console box, a tool's table): end quietly
+        console.silence_stdout()
+        return 0
     except (ConfigError, BoundError) as error:
-        print(f"{name}: {error}", file=sys.stderr)
+        print(f"{parser.prog}: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         return 0

@@ -33,7 +33,7 @@ from cyclonedds.core import InstanceState
 from cyclonedds.qos import Policy
 from cyclonedds.sub import DataReader, InvalidSample
 
-from automotive.bus import badsamples, validation
+from automotive.bus import badsamples, console, validation
 from automotive.bus.badsamples import BadSample, BadSampleReporter
 from automotive.cyclone import codec_hook, serdata
 from automotive.cyclone.bounds import type_name
@@ -154,8 +154,10 @@ class CheckedReader(DataReader[T]):
                 if batch is None:
                     break
                 samples += batch
-            return samples
-        return self._checked(fetched)
+        else:
+            samples = self._checked(fetched)
+        console.traffic.count_in(self.topic.name, sum(not isinstance(sample, InvalidSample) for sample in samples))
+        return samples
 
     def read(self, N: int = 1, condition: Any = None, instance_handle: int | None = None) -> list[Any]:
         fetched = serdata.fetch(self, False, N, condition, instance_handle)

@@ -9,25 +9,31 @@
 - ``on_signals``: what a stop signal does (set an Event, wake a WaitSet) runs in a thread of its own, never in the
   Python signal handler, where it can deadlock.
 
-The standard library only.
+The standard library only (``--version`` asks automotive.bus.version, on demand).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import faulthandler
+import os
 import signal
 import socket
+import stat
 import sys
+import tempfile
 import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from types import FrameType
 from typing import Any, NoReturn
 
+from automotive.bus import ports
+
 EXIT_BAD_INPUT = 2
 NETWORK_MODES = ("loopback", "lan", "peers")
-MAX_DOMAIN_ID = 232
+MAX_DOMAIN_ID = ports.MAX_DOMAIN_ID  # 231: the highest whose RTPS ports fit in 16 bits (automotive.bus.ports)
 DUMP_STACKS_SIGNAL = signal.SIGUSR1
 _signal_thread: threading.Thread | None = None
 _signal_callbacks: dict[int, list[Callable[[int], None]]] = {}
@@ -127,11 +133,30 @@ def stop_dumping_stacks() -> None:
     signal.signal(DUMP_STACKS_SIGNAL, signal.SIG_IGN)
 
 
+_command_name: str | None = None
+
+
+def set_command_name(name: str) -> None:
+    """The dispatcher (``automotive run vision``) says how the user named the program it runs."""
+    global _command_name
+    _command_name = name
+
+
+def command_name(default: str) -> str:
+    """The name a program's usage line and hints give it: what the user typed, else its own command's name."""
+    return _command_name or default
+
+
 class ArgumentParser(argparse.ArgumentParser):
-    """argparse with a one-line error: ``prog: message (prog --help shows the usage)``, exit code 2."""
+    """argparse with a one-line error: ``prog: message (prog --help shows the usage)``, exit code 2; and
+    ``--version`` (:mod:`automotive.bus.version`) on every program that has ``--help``."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        if self.add_help:
+            from automotive.bus.version import add_version_option
+
+            add_version_option(self)
 
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: {message} ({self.prog} --help shows the usage)", file=sys.stderr)
@@ -139,14 +164,12 @@ class ArgumentParser(argparse.ArgumentParser):
 
 
 def domain_id(text: str) -> int:
-    """An argparse type: a DDS domain id, 0..232 (the highest whose ports fit in 16 bits with the RTPS defaults)."""
+    """An argparse type: a DDS domain id, 0..MAX_DOMAIN_ID (automotive.bus.ports.check_domain_id: every program and
+    property that takes a domain says the same)."""
     try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if not 0 <= value <= MAX_DOMAIN_ID:
-        raise argparse.ArgumentTypeError(f"expected a domain id 0..{MAX_DOMAIN_ID}, not '{text}'")
-    return value
+        return ports.check_domain_id(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def add_domain_option(parser: argparse.ArgumentParser, default: int | None = None,
@@ -179,3 +202,108 @@ def add_log_dir_option(parser: argparse.ArgumentParser, default: Path | None = N
 def add_stats_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--stats", type=Path, default=None, metavar="FILE",
                         help="append the periodic status as JSON lines to FILE (one object a line)")
+
+
+# -- output paths: checked before a program starts --------------------------------------------------------------------
+# A file or folder a program writes (a recording, a plot, a log or stats folder) is checked when the command line is
+# read, before any participant exists: a missing or read-only folder then ends the program at once with one line, not
+# after a run of minutes (a plot written on exit) or with a traceback at the first write. The problems are phrased to
+# follow "OPTION PATH: ". Whether a folder takes new files is tried, not guessed from permission bits: root writes
+# through them, a read-only mount refuses even root, and network or FUSE file systems have rules of their own.
+
+
+def output_file_problem(path: Path) -> str | None:
+    """Why a program could not create, replace or append to the file ``path``; None when it can."""
+    kind, error = _path_kind(path)
+    if kind == "folder":
+        return "is a folder, not a file"
+    if kind == "other":  # an existing file (or a device such as /dev/null): written in place, its folder not needed
+        return None if os.access(path, os.W_OK) else f"cannot write to it ({_denial(path)})"
+    if error:
+        return error
+    folder = path.parent
+    kind, error = _path_kind(folder)
+    if kind == "missing":
+        return error or f"folder {folder} does not exist"
+    if kind == "other":
+        return f"{folder} is not a folder"
+    problem = _cannot_create_in(folder)
+    return f"cannot create files in folder {folder} ({problem})" if problem else None
+
+
+def output_folder_problem(path: Path, create: bool = False) -> str | None:
+    """Why a program could not write new files into the folder ``path``; None when it can. ``create``: the program
+    creates the folder and its missing parents (mkdir -p), so a missing one is fine if its nearest existing parent
+    takes new folders."""
+    kind, error = _path_kind(path)
+    if kind == "other":
+        return "is not a folder"
+    if kind == "folder":
+        problem = _cannot_create_in(path)
+        return f"cannot create files in it ({problem})" if problem else None
+    if error:
+        return error
+    if not create:
+        return "no such folder"
+    parent = path.parent
+    while True:
+        kind, error = _path_kind(parent)
+        if kind != "missing" or error or parent == parent.parent:
+            break
+        parent = parent.parent
+    if error:
+        return error
+    if kind != "folder":
+        return f"cannot create it: {parent} is not a folder"
+    problem = _cannot_create_in(parent)
+    return f"cannot create it in folder {parent} ({problem})" if problem else None
+
+
+def output_file(text: str) -> Path:
+    """An argparse type: a file the program writes (:func:`output_file_problem`), checked as it is parsed."""
+    path = Path(text)
+    problem = output_file_problem(path)
+    if problem:
+        raise argparse.ArgumentTypeError(f"{text}: {problem}")
+    return path
+
+
+def output_folder(text: str) -> Path:
+    """An argparse type: a folder the program writes into, created with its parents when missing
+    (:func:`output_folder_problem` with ``create``), checked as it is parsed."""
+    path = Path(text)
+    problem = output_folder_problem(path, create=True)
+    if problem:
+        raise argparse.ArgumentTypeError(f"{text}: {problem}")
+    return path
+
+
+def _path_kind(path: Path) -> tuple[str, str]:
+    """("missing" | "folder" | "other", why it cannot be looked at, or "")."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "missing", ""
+    except NotADirectoryError:
+        return "missing", f"{path.parent} is not a folder"
+    except OSError as error:  # a parent that cannot be searched (EACCES), a symbolic link loop...
+        return "missing", f"cannot look at it ({error.strerror})"
+    return ("folder" if stat.S_ISDIR(mode) else "other"), ""
+
+
+def _cannot_create_in(folder: Path) -> str:
+    """Why no file can be created in ``folder`` (its strerror), or "": an unnamed temporary file, nothing left."""
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            return ""
+    except OSError as error:
+        return error.strerror or str(error)
+
+
+def _denial(path: Path) -> str:
+    """Why an existing file cannot be written: its file system is read-only, else its permissions."""
+    try:
+        read_only = bool(os.statvfs(path).f_flag & os.ST_RDONLY)
+    except OSError:
+        read_only = False
+    return os.strerror(errno.EROFS if read_only else errno.EACCES)

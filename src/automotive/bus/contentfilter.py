@@ -34,7 +34,7 @@ Sequences read as numpy views (``CheckedReader.use_views``) are filtered as well
 
 The parsing is done by Lark (PyPI ``lark``, a well-kept parsing library) from the grammar below: no library parses
 the DDS filter language itself. Evaluation is ours: the tree compiles to nested Python closures once, so a sample
-costs a few attribute reads and comparisons (``automotive-bench-filter`` measures it).
+costs a few attribute reads and comparisons (``automotive bench filter`` measures it).
 """
 
 from __future__ import annotations

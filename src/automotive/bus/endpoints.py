@@ -18,7 +18,7 @@ from cyclonedds.qos import DataReaderQos, DataWriterQos, Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
-from automotive.bus import badsamples, memtune
+from automotive.bus import badsamples, console, memtune
 from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.contentfilter import FilteredReader, Predicate
@@ -40,6 +40,7 @@ class CheckedWriter(DataWriter[T]):
         # numpy arrays of fixed-size structs are written by the generated codecs; made dataclasses for Cyclone's
         # serializer when the codecs are not plugged in (the version gate is closed)
         super().write(codec_hook.writable(sample), timestamp)
+        console.traffic.count_out(self.topic.name)
 
 
 class Databus:

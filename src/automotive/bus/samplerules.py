@@ -17,7 +17,7 @@ DATATYPE_CODES: dict[int, str] = {
     INT8: "i1", UINT8: "u1", INT16: "i2", UINT16: "u2", INT32: "i4", UINT32: "u4", FLOAT32: "f4", FLOAT64: "f8",
 }
 
-# The Shapes Demo canvas (pixels) and what a circle on it can be: the sizes Shapes Demo draws (automotive-shapes
+# The Shapes Demo canvas (pixels) and what a circle on it can be: the sizes Shapes Demo draws (automotive shapes-demo
 # publishes 1..240) and positions at most one canvas beyond its edges (Shapes Demo keeps shapes inside; others may
 # overshoot).
 CANVAS_WIDTH, CANVAS_HEIGHT = 240, 270

@@ -4,18 +4,21 @@ Log lines are for people and may change wording; what a program counts goes here
 record has ``t`` (seconds since the epoch), ``program`` (the instance name) and ``kind`` (what the record is:
 ``window`` and ``totals`` of camera_sub, ``matched`` of every endpoint, ``list`` of sensor_fusion...), then fields of
 its own. Writes are line-buffered and thread-safe (listener threads report too); a reader of the file sees whole
-lines.
+lines. The file's folder is checked before the program starts (a missing or read-only one is bad input); a write
+that fails later (a full disk) is said once on stderr and ends the records, not the program.
 """
 
 from __future__ import annotations
 
 import json
+import sys
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
+from automotive.bus.cli import output_file_problem
 from automotive.bus.errors import ConfigError
 
 
@@ -46,6 +49,9 @@ class Stats:
         self._lock = threading.Lock()
         self._stream: IO[str] | None = None
         if path is not None:
+            problem = output_file_problem(path)
+            if problem:
+                raise ConfigError(f"--stats {path}: {problem}")
             try:
                 self._stream = open(path, "a", encoding="utf-8", buffering=1)
             except OSError as error:
@@ -62,12 +68,30 @@ class Stats:
                           separators=(",", ":"))
         with self._lock:
             if self._stream is not None:
-                self._stream.write(line + "\n")
+                try:
+                    self._stream.write(line + "\n")
+                except OSError as error:
+                    self._give_up(error)
+
+    def _give_up(self, error: OSError) -> None:
+        """A write failed: say so once and write no more (the program's work goes on; what the buffer still holds
+        cannot be written either, so the stream is dropped without a flush)."""
+        print(f"{self.program}: --stats {self.path}: {error.strerror or error}; no more status records",
+              file=sys.stderr)
+        stream, self._stream = self._stream, None
+        if stream is not None:
+            try:
+                stream.close()
+            except OSError:
+                pass  # the same failure, once more, on the buffered rest
 
     def close(self) -> None:
         with self._lock:
             if self._stream is not None:
-                self._stream.close()
+                try:
+                    self._stream.close()
+                except OSError as error:
+                    self._give_up(error)
                 self._stream = None
 
 

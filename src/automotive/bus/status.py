@@ -95,10 +95,12 @@ class StatusListener(Listener):
     def on_liveliness_changed(self, reader: Any, status: Any) -> None:
         if status.not_alive_count_change > 0:
             message, level = "liveliness LOST of a writer", logging.WARNING
-        elif status.alive_count_change > 0:
+        elif status.alive_count_change > 0 and status.not_alive_count_change < 0:
             message, level = "liveliness regained: a writer is alive", logging.INFO
+        elif status.alive_count_change > 0:  # a writer just matched: the matched line said so already
+            message, level = "a new writer is alive", logging.DEBUG
         else:
-            message, level = "liveliness changed", logging.INFO
+            message, level = "liveliness changed", logging.DEBUG
         if self.stats is not None:
             self.stats.record("liveliness", topic=self.topic_name, alive=status.alive_count,
                               not_alive=status.not_alive_count, lost=status.not_alive_count_change > 0)

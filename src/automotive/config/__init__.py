@@ -1,7 +1,7 @@
 """The shipped configuration, as package data: one properties file per program, the QoS profiles, the IDL and the
 CSV data of the vision sensor and the vehicle platform.
 
-Layout (the same in the package and in a copy made with ``automotive-config export DIR``)::
+Layout (the same in the package and in a copy made with ``automotive config export DIR``)::
 
     properties/<program>.properties     qos.File=../qos/automotive_qos.xml, dataFile=data/<name>.csv
     properties/data/{vision,platform}.csv

@@ -1,7 +1,7 @@
 """Write an editable copy of the shipped configuration into a folder.
 
-    automotive-config export DIR [--overwrite]     properties/, qos/ and idl/ of the installed package into DIR
-    automotive-config path                         where the shipped configuration is (read-only)
+    automotive config export DIR [--overwrite]     properties/, qos/ and idl/ of the installed package into DIR
+    automotive config path                         where the shipped configuration is (read-only)
 
 The copy keeps the layout, so its relative paths (``qos.File=../qos/automotive_qos.xml``, ``dataFile=data/...``)
 point at its own files: ``automotive-vision --properties DIR/properties/vision.properties`` then runs on the copy,
@@ -18,7 +18,7 @@ from pathlib import Path
 from automotive import config
 from automotive.bus.cli import EXIT_BAD_INPUT, ArgumentParser
 
-PROG = "automotive-config"
+PROG = "automotive config"
 
 
 def build_parser() -> argparse.ArgumentParser:

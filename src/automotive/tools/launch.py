@@ -1,17 +1,17 @@
 """Start the automotive applications together, watch them, and stop them together.
 
-    automotive-launch                                   all applications, single host (loopback)
-    automotive-launch vision sensor_fusion              a subset, by name
-    automotive-launch --except camera_pub,camera_sub    all but these
-    automotive-launch --vision-sensors 3                three vision sensors, config.sensorId 1, 2, 3
-    automotive-launch --redundant                       hot standbys: two sensor_fusion, two collision_avoidance
-    automotive-launch --peers 10.0.0.1,10.0.0.2 --interface eth0 vision sensor_fusion
-    automotive-launch -D collision_avoidance:config.alertSize=1.0 -D config.domainId=7
-    automotive-launch --stats-dir figures               each application's --stats records in figures/<name>.jsonl
-    automotive-launch --stats-dir hmi:figures           only the HMI's
-    automotive-launch stop                              stop the running launcher (from another terminal)
-    automotive-launch status                            what the running launcher runs
-    automotive-launch --list                            the applications this version has
+    automotive launch                                   all applications, single host (loopback)
+    automotive launch vision sensor_fusion              a subset, by name
+    automotive launch --except camera_pub,camera_sub    all but these
+    automotive launch --vision-sensors 3                three vision sensors, config.sensorId 1, 2, 3
+    automotive launch --redundant                       hot standbys: two sensor_fusion, two collision_avoidance
+    automotive launch --peers 10.0.0.1,10.0.0.2 --interface eth0 vision sensor_fusion
+    automotive launch -D collision_avoidance:config.alertSize=1.0 -D config.domainId=7
+    automotive launch --stats-dir figures               each application's --stats records in figures/<name>.jsonl
+    automotive launch --stats-dir hmi:figures           only the HMI's
+    automotive launch stop                              stop the running launcher (from another terminal)
+    automotive launch status                            what the running launcher runs
+    automotive launch --list                            the applications this version has
 
 (``scripts/launch`` in a clone of the repository: the same, after installing what is needed.)
 
@@ -23,11 +23,11 @@ directory, or --log-dir). Without --mode: window
 if possible, else tmux in a terminal, else background; with no terminal (a pipe, CI) always background.
 
 The launcher owns the application processes in every mode (the windows only show their log files), so stopping works
-the same everywhere: Ctrl-C, SIGTERM or `automotive-launch stop` sends SIGTERM to each application, waits --stop-timeout
+the same everywhere: Ctrl-C, SIGTERM or `automotive launch stop` sends SIGTERM to each application, waits --stop-timeout
 seconds, sends SIGKILL to any left, and prints how each one ended. An application that ends on its own is reported at
 once with its exit code; the others go on. A second Ctrl-C kills at once. Before it kills an application that did not
 stop, the launcher asks it for its threads' stacks (SIGUSR1), which go to its log: where it hung. The launcher
-answers SIGUSR1 the same way, and `automotive-launch stop` asks it before it kills a launcher that does not end.
+answers SIGUSR1 the same way, and `automotive launch stop` asks it before it kills a launcher that does not end.
 
 Each application is started as ``python -m automotive.apps.<name>`` with the launcher's own interpreter, so it runs
 the same installation.
@@ -64,14 +64,17 @@ from automotive.bus.cli import (
     add_override_option,
     dump_stacks_on_request,
     on_signals,
+    output_folder_problem,
     stop_dumping_stacks,
 )
+from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE
+from automotive.bus.ports import check_domain_id
 from automotive.tools import children
 from automotive.tools.children import Child, Line
 
 # Every application of the system, in the order they are listed and started.
 APPS = children.APPS
-PROG = "automotive-launch"
+PROG = "automotive launch"
 DEFAULT_LOG_DIR = Path("logs")
 MODES = ("auto", "window", "tmux", "background")
 # Redundant mode (--redundant): these run twice, as <name> (the primary) and <name>-2 (the standby), with exclusive
@@ -85,6 +88,12 @@ SECOND_INTERRUPT_AFTER_S = 0.5  # an interrupt sooner than this after the first 
 STOP_MARGIN_S = STACK_DUMP_WAIT_S + 5 + 2 * 2 + 5
 DEFAULT_STOP_TIMEOUT = 10.0
 PID_FILE = "launch.pid"
+# The applications' DEBUG lines (every sample: automotive.bus.console), which the console and the windows leave out
+# unless -v; the log files keep them.
+DEBUG_LINE = re.compile(DEBUG_LINE_PATTERN)
+DEBUG_LINE_GREP = "^[0-9:.]+ [^ ]+ debug: "  # the same, for grep -E in a window's shell
+# Lines that must stand out: an alert raised or cleared, a lost alert source.
+ALERT_LINE = re.compile(r"DRIVER ALERT|ALERT:|all clear|All clear|alert source (lost|LOST)|no alert source")
 SUMMARY_FILE = "launch-summary.txt"
 LAUNCHER_LABEL = "launch"
 # The launcher's line once every application is started: what a program driving the launcher waits for.
@@ -151,6 +160,12 @@ def check_overrides(overrides: Sequence[str], vision_sensors: int, redundant: bo
             raise LaunchError(f"-D {item}: unknown application '{match.group(1)}'; expected one of: {', '.join(APPS)}")
         if "=" not in setting or not setting.split("=", 1)[0].strip():
             raise LaunchError(f"-D {item}: expected KEY=VALUE or APP:KEY=VALUE")
+        key, _, value = setting.partition("=")
+        if key.strip() == "config.domainId":  # said once here, as --domain says it, not by every application
+            try:
+                check_domain_id(value.strip())
+            except ValueError as error:
+                raise LaunchError(f"-D {item}: {error}") from None
 
 
 def plan(args: argparse.Namespace) -> tuple[list[AppSpec], list[tuple[str, str]]]:
@@ -204,8 +219,9 @@ def stats_folder(module: str, name: str, stats_dirs: Sequence[str]) -> Path | No
         if target and target not in APPS and not target.startswith(tuple(f"{app}-" for app in APPS)):
             raise LaunchError(f"--stats-dir {item}: unknown application '{target}'; expected one of: "
                               f"{', '.join(APPS)}")
-        if not Path(path).is_dir():
-            raise LaunchError(f"--stats-dir {item}: no such folder '{path}'")
+        problem = output_folder_problem(Path(path))
+        if problem:
+            raise LaunchError(f"--stats-dir {item}: {problem}")
         if not target or target in (module, name):
             folder = Path(path).resolve()
     return folder
@@ -215,7 +231,8 @@ def stats_folder(module: str, name: str, stats_dirs: Sequence[str]) -> Path | No
 class Console:
     """Lines of the launcher and of the applications, prefixed with their name (coloured on a terminal)."""
 
-    def __init__(self, names: Sequence[str], show_apps: bool, launcher_log: Path | None):
+    def __init__(self, names: Sequence[str], show_apps: bool, launcher_log: Path | None, verbose: bool = False):
+        self.verbose = verbose  # every line of the applications, their DEBUG lines (every sample) too
         self.colour = sys.stdout.isatty() and os.environ.get("NO_COLOR") is None and os.environ.get("TERM") != "dumb"
         self.width = max([len(LAUNCHER_LABEL), *map(len, names)])
         self.colours = {name: COLOURS[index % len(COLOURS)] for index, name in enumerate(names)}
@@ -238,9 +255,12 @@ class Console:
             pass  # nobody reads our output any more: the log files still have it
 
     def app_line(self, name: str, text: str) -> None:
-        if self.show_apps:
-            with self.lock:
-                self._emit(self._prefix(name) + text)
+        if not self.show_apps or (not self.verbose and DEBUG_LINE.match(text)):
+            return
+        if ALERT_LINE.search(text):  # an alert must not scroll by unseen among the status lines
+            text = f"\033[1;7m{text}\033[0m" if self.colour else f">>> {text}"
+        with self.lock:
+            self._emit(self._prefix(name) + text)
 
     def say(self, text: str) -> None:
         with self.lock:
@@ -269,7 +289,7 @@ def set_parent_death_signal() -> None:
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
     except (OSError, AttributeError):
-        pass  # not Linux: `automotive-launch stop` still finds the applications through the pid file
+        pass  # not Linux: `automotive launch stop` still finds the applications through the pid file
 
 
 @dataclass
@@ -297,9 +317,13 @@ class RunningApp:
 
 
 # -- views: windows or tmux windows that show the log files ---------------------------------------------------------
-def tail_command(log_path: Path) -> list[str]:
+def tail_command(log_path: Path, verbose: bool = False) -> list[str]:
+    """The command a window runs to show a log file: every line with ``verbose``, else without the DEBUG lines."""
     # --pid: the view closes by itself when the launcher is gone, whatever the terminal or multiplexer.
-    return ["tail", f"--pid={os.getpid()}", "-n", "+1", "-F", str(log_path)]
+    tail = ["tail", f"--pid={os.getpid()}", "-n", "+1", "-F", str(log_path)]
+    if verbose:
+        return tail
+    return ["sh", "-c", f'{shlex.join(tail)} | grep --line-buffered -v -E "$0"', DEBUG_LINE_GREP]
 
 
 def find_terminal() -> str | None:
@@ -348,7 +372,8 @@ class WindowViews(Views):
         self.windows: list[subprocess.Popen[bytes]] = []
 
     def open(self, app: RunningApp) -> None:
-        command = terminal_command(self.terminal, f"{app.name} (automotive)", tail_command(app.log_path))
+        command = terminal_command(self.terminal, f"{app.name} (automotive)",
+                                   tail_command(app.log_path, self.console.verbose))
         try:
             self.windows.append(subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                                  stderr=subprocess.DEVNULL, start_new_session=True))
@@ -374,7 +399,7 @@ class TmuxViews(Views):
 
     def open(self, app: RunningApp) -> None:
         result = subprocess.run(["tmux", "new-window", "-d", "-P", "-F", "#{window_id}", "-t", f"{self.session}:",
-                                 "-n", app.name, shlex.join(tail_command(app.log_path))],
+                                 "-n", app.name, shlex.join(tail_command(app.log_path, self.console.verbose))],
                                 capture_output=True, text=True)
         if result.returncode == 0:
             self.window_ids.append(result.stdout.strip())
@@ -386,7 +411,7 @@ class TmuxViews(Views):
             subprocess.run(["tmux", "kill-window", "-t", window_id], capture_output=True)
 
 
-# -- the pid file: how `automotive-launch stop` finds the launcher and its applications ------------------------------
+# -- the pid file: how `automotive launch stop` finds the launcher and its applications ------------------------------
 pid_cmdline = children.command_line
 pid_alive = children.alive
 
@@ -450,7 +475,8 @@ class Supervisor:
             (self.log_dir / PID_FILE).unlink(missing_ok=True)
 
     def start_all(self) -> None:
-        env = dict(os.environ)
+        # Every line, every sample included, goes to the log files; the console leaves the DEBUG lines out unless -v.
+        env = {**os.environ, LOG_LEVEL_VARIABLE: "debug"}
         # All processes are started before any reader thread exists: the child set-up (parent-death signal) runs
         # between fork and exec, which is only safe while no other thread may hold a lock (the signal thread waits
         # in recv, holding none).
@@ -589,7 +615,8 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
                           f"stop it with `{PROG} stop`, or use another --log-dir")
     (log_dir / SUMMARY_FILE).unlink(missing_ok=True)
     names = [spec.name for spec in specs]
-    console = Console(names, show_apps=mode != "window" and not args.quiet, launcher_log=log_dir / "launch.log")
+    console = Console(names, show_apps=mode != "window" and not args.quiet, launcher_log=log_dir / "launch.log",
+                      verbose=args.verbose)
     views: Views = Views()
     if mode == "window":
         terminal = find_terminal()
@@ -710,7 +737,7 @@ def stop_command(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     info = read_pid_file(args.log_dir)
     if info is None:
-        print(f"launch stop: no launcher is running (no {args.log_dir / PID_FILE})", file=sys.stderr)
+        print(f"{PROG} stop: no launcher is running (no {args.log_dir / PID_FILE})", file=sys.stderr)
         return 1
     launcher = launcher_running(info)
     if launcher is None:  # the launcher died without cleaning up: end what it left behind
@@ -812,6 +839,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--stats-dir", action="append", default=[], metavar="[APP:]DIR",
                         help="every application (or APP only) appends its status records (--stats) to "
                              "DIR/<name>.jsonl (repeatable)")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="show every line of the applications, every sample too (default: their starts and ends, "
+                             "state changes, alerts and a status line every 5 s; the log files keep every line)")
     parser.add_argument("--quiet", action="store_true",
                         help="background mode: only the launcher's own lines on the console (the applications' "
                              "lines are in their log files)")
@@ -835,7 +865,7 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     try:
         return _main(argv)
     except LaunchError as error:
-        print(f"launch: {error}", file=sys.stderr)
+        print(f"{PROG}: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
 
 
@@ -847,6 +877,9 @@ def _main(argv: list[str]) -> int:
     args = build_parser().parse_intermixed_args(argv)
     if args.list:
         return printing(list_command)
+    problem = output_folder_problem(args.log_dir, create=True)  # before anything starts: a read-only folder too
+    if problem:
+        raise LaunchError(f"--log-dir {args.log_dir}: {problem}")
     specs, missing = plan(args)
     if not specs:
         reasons = "; ".join(f"{name}: {reason}" for name, reason in missing)

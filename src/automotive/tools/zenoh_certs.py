@@ -1,8 +1,8 @@
-"""Certificates of the Zenoh link between sites (automotive-zenoh-bridge, docs/zenoh.md): a certificate authority and,
+"""Certificates of the Zenoh link between sites (automotive zenoh-bridge, docs/zenoh.md): a certificate authority and,
 for each site, a key and a certificate signed by it, made with openssl.
 
-    automotive-zenoh-certs DIR SITE[=ADDRESS,...] [SITE[=ADDRESS,...] ...]
-    automotive-zenoh-certs site/certs site-a=10.0.0.2 site-b=10.0.0.3
+    automotive zenoh-certs DIR SITE[=ADDRESS,...] [SITE[=ADDRESS,...] ...]
+    automotive zenoh-certs site/certs site-a=10.0.0.2 site-b=10.0.0.3
 
 DIR/ca.pem, DIR/ca.key       the CA (made on the first run, reused afterwards: keep ca.key off the vehicles)
 DIR/SITE.pem, DIR/SITE.key   one site's certificate and key
@@ -32,7 +32,7 @@ from pathlib import Path
 
 from automotive.bus.cli import EXIT_BAD_INPUT, ArgumentParser
 
-PROG = "automotive-zenoh-certs"
+PROG = "automotive zenoh-certs"
 DEFAULT_DAYS = 825
 SITE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9.-]*$")
 HOST_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9.-]*$")

@@ -41,7 +41,7 @@ SITE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]*$")
 ENDPOINT = re.compile(r"^(tls|tcp)/(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9.-]+):(\d{1,5})$")
 LIVELINESS_CHUNK = "@dds_writers"
 SLASH_ESCAPE = "§"
-CERTIFICATE_HINT = "make them with automotive-zenoh-certs (docs/zenoh.md)"
+CERTIFICATE_HINT = "make them with automotive zenoh-certs (docs/zenoh.md)"
 # Reconnection: first retry after 250 ms, then at most every second (Zenoh's default backs off to 4 s).
 RETRY_FIRST_MS, RETRY_MAX_MS = 250, 1000
 

@@ -1,0 +1,145 @@
+"""What a program prints on its console: one line per state change and a periodic status, every sample only on
+request.
+
+- :func:`setup_logging`: a program's log lines on stdout, ``HH:MM:SS.mmm name: message``. INFO is what a person
+  follows (start, matches and losses, liveliness, owner changes, deadlines, bad samples, alerts, the status line);
+  DEBUG adds every sample (``-v``, or ``AUTOMOTIVE_LOG_LEVEL=debug`` in the environment: the launcher sets it for
+  its children so that their log files keep every line, and shows only the rest). A line of another level than INFO
+  carries it after the name (``vision debug: ...``, ``hmi WARNING: ...``), so a reader of the output (the launcher)
+  can tell them apart.
+- A closed standard output (``automotive-vision | head -5``) ends the program quietly: the first write that fails
+  points stdout at /dev/null and calls the program's stop, instead of a "Logging error" traceback per later line.
+- :class:`Traffic`: samples in and out per topic, counted where every sample passes (the runtime's checked readers
+  and writers, and the raw paths that bypass them), for the status line.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import threading
+from collections.abc import Callable
+from typing import TextIO
+
+LOG_LEVEL_VARIABLE = "AUTOMOTIVE_LOG_LEVEL"
+STATUS_INTERVAL_S = 5.0  # the status line's period (config.statusInterval)
+LEVELS = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING}
+TIME_FORMAT = "%H:%M:%S"
+# The level names a line carries after the program's name (INFO carries none: it is most lines).
+LEVEL_TAGS = {logging.DEBUG: " debug", logging.INFO: "", logging.WARNING: " WARNING", logging.ERROR: " ERROR",
+              logging.CRITICAL: " CRITICAL"}
+# How a reader of the output recognises a DEBUG line: ``12:00:01.234 vision debug: ...``.
+DEBUG_LINE_PATTERN = r"^\d\d:\d\d:\d\d\.\d{3} \S+ debug: "
+
+
+class LevelFormatter(logging.Formatter):
+    def __init__(self) -> None:
+        super().__init__("%(asctime)s.%(msecs)03d %(name)s%(level_tag)s: %(message)s", TIME_FORMAT)
+
+    def format(self, record: logging.LogRecord) -> str:
+        record.level_tag = LEVEL_TAGS.get(record.levelno, f" {record.levelname}")
+        return super().format(record)
+
+
+class ClosedPipeHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """A stream handler that, when its reader has gone (EPIPE), silences the stream and calls ``on_closed`` once."""
+
+    def __init__(self, stream: TextIO, on_closed: Callable[[], None] | None = None) -> None:
+        super().__init__(stream)
+        self.on_closed = on_closed
+        self.closed_pipe = False
+
+    def handleError(self, record: logging.LogRecord) -> None:
+        error = sys.exc_info()[1]
+        if isinstance(error, BrokenPipeError) or (isinstance(error, ValueError) and self.closed_pipe):
+            self.reader_gone()
+            return
+        super().handleError(record)
+
+    def reader_gone(self) -> None:
+        if self.closed_pipe:
+            return
+        self.closed_pipe = True
+        silence_stdout()
+        if self.on_closed is not None:
+            self.on_closed()
+
+
+def silence_stdout() -> None:
+    """Point stdout at /dev/null: nobody reads it any more, and Python's own flush at exit must not fail on it."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):
+        pass
+
+
+def level_from(verbose: bool) -> int:
+    """DEBUG with ``-v``; else ``AUTOMOTIVE_LOG_LEVEL`` (debug, info, warning); else INFO."""
+    if verbose:
+        return logging.DEBUG
+    return LEVELS.get(os.environ.get(LOG_LEVEL_VARIABLE, "").strip().lower(), logging.INFO)
+
+
+def setup_logging(name: str, verbose: bool = False, on_closed: Callable[[], None] | None = None) -> logging.Logger:
+    """The program's logger ``name`` on stdout, line-buffered (a launcher or a test reading a pipe sees each line at
+    once); ``on_closed`` is called once if stdout's reader goes away."""
+    if hasattr(sys.stdout, "reconfigure"):
+        sys.stdout.reconfigure(line_buffering=True)
+    handler = ClosedPipeHandler(sys.stdout, on_closed)
+    handler.setFormatter(LevelFormatter())
+    log = logging.getLogger(name)
+    log.handlers[:] = [handler]
+    log.setLevel(level_from(verbose))
+    log.propagate = False
+    return log
+
+
+def closed_pipe_handler(log: logging.Logger) -> ClosedPipeHandler | None:
+    return next((handler for handler in log.handlers if isinstance(handler, ClosedPipeHandler)), None)
+
+
+class Traffic:
+    """Samples in and out per topic since the last :meth:`rates`; thread-safe (listeners and the main loop count)."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._in: dict[str, int] = {}
+        self._out: dict[str, int] = {}
+
+    def count_in(self, topic: str, samples: int = 1) -> None:
+        if samples:
+            with self._lock:
+                self._in[topic] = self._in.get(topic, 0) + samples
+
+    def count_out(self, topic: str, samples: int = 1) -> None:
+        with self._lock:
+            self._out[topic] = self._out.get(topic, 0) + samples
+
+    def take_counts(self) -> tuple[dict[str, int], dict[str, int]]:
+        """The counts since the last call (in, out), and start counting anew."""
+        with self._lock:
+            counts = (self._in, self._out)
+            self._in, self._out = {}, {}
+        return counts
+
+    def rates(self, seconds: float, topics_in: list[str], topics_out: list[str]) -> str:
+        """``in VisionTopic 10.0/s, out SensorObjects 10.0/s`` over ``seconds``; every topic of the program is named,
+        those that moved nothing at 0/s (the sign of a missing peer)."""
+        counts_in, counts_out = self.take_counts()
+        per_s = max(seconds, 1e-9)
+
+        def listed(direction: str, topics: list[str], counts: dict[str, int]) -> str:
+            names = list(dict.fromkeys([*topics, *counts]))
+            if not names:
+                return ""
+            return f"{direction} " + ", ".join(f"{topic} {counts.get(topic, 0) / per_s:.3g}/s" for topic in names)
+
+        return "; ".join(part for part in (listed("in", topics_in, counts_in), listed("out", topics_out, counts_out))
+                         if part)
+
+
+# One process, one program: the counters every checked reader and writer of the process add to.
+traffic = Traffic()

@@ -1,0 +1,93 @@
+"""What a person reads on the console: an application's INFO lines are its state changes and a status line, every
+sample only with -v; the launcher shows the same and keeps every line in the log files; a closed pipe ends a program
+quietly."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from apprunner import AppRunner
+
+from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE
+
+LAUNCH = [sys.executable, "-m", "automotive.tools.launch"]
+FAST_STATUS = ["-D", "config.statusInterval=0.5"]  # the status line every half second instead of every 5 s
+
+
+def quiet_env() -> dict[str, str]:
+    """As in a user's shell: no log level chosen (the tests' own default is every line); the runner adds the rest of
+    the environment."""
+    return {LOG_LEVEL_VARIABLE: ""}
+
+
+def test_an_application_alone_shows_status_lines_not_samples(apps: AppRunner, domain_id: int) -> None:
+    vision = apps.start_command("vision", [sys.executable, "-m", "automotive.apps.vision", "--domain", str(domain_id),
+                                           "-D", "config.pubInterval=20", *FAST_STATUS], env=quiet_env())
+    vision.wait_for(r"^\S+ vision: status: out VisionTopic [\d.]+/s; sample \d+: \d+ object\(s\)$", count=3)
+    assert vision.count("published sample") == 0
+    assert not any(re.match(DEBUG_LINE_PATTERN, line) for line in vision.lines)
+
+
+def test_verbose_shows_every_sample_marked_debug(apps: AppRunner, domain_id: int) -> None:
+    vision = apps.start_command("vision", [sys.executable, "-m", "automotive.apps.vision", "--domain", str(domain_id),
+                                           "-D", "config.pubInterval=20", "-v"], env=quiet_env())
+    line = vision.wait_for(r"published sample 3:")
+    assert re.match(DEBUG_LINE_PATTERN, line), line
+
+
+def test_a_closed_pipe_ends_an_application_quietly(domain_id: int) -> None:
+    """``automotive-vision -v | head -3``: once the reader is gone the application stops, exit 0, no traceback."""
+    process = subprocess.Popen([sys.executable, "-m", "automotive.apps.vision", "--domain", str(domain_id), "-v",
+                                "-D", "config.pubInterval=10"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, env={**os.environ, **quiet_env()})
+    assert process.stdout is not None and process.stderr is not None
+    for _ in range(3):
+        assert process.stdout.readline()
+    process.stdout.close()  # what head does after its lines
+    try:
+        code = process.wait(timeout=20)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    errors = process.stderr.read()
+    assert code in (0, -13, 141), f"exit code {code}: {errors}"
+    assert "Traceback" not in errors and "Logging error" not in errors, errors
+
+
+def test_the_launcher_console_leaves_samples_to_the_log_files(apps: AppRunner, domain_id: int,
+                                                              tmp_path: Path) -> None:
+    launcher = apps.start_command("launch", [*LAUNCH, "--mode", "background", "--domain", str(domain_id),
+                                             "--log-dir", str(tmp_path), "vision", "sensor_fusion", *FAST_STATUS],
+                                  env={**quiet_env(), "DISPLAY": ""})
+    launcher.wait_for(r"^sensor_fusion\s+\| .*sensor_fusion: status: in VisionTopic [\d.]+/s.*; list \d+: ", count=2)
+    launcher.wait_for(r"^vision\s+\| .*\[VisionTopic\] writer matched a reader")  # a state change is shown
+    assert launcher.count("published") == 0, "a sample line reached the console"
+    launcher.stop()
+    # the log file keeps every line: the samples too
+    assert re.search(r"vision debug: published sample 1:", (tmp_path / "vision.log").read_text())
+
+
+def test_the_launcher_makes_alerts_stand_out(apps: AppRunner, domain_id: int, tmp_path: Path) -> None:
+    launcher = apps.start_command("launch", [*LAUNCH, "--mode", "background", "--domain", str(domain_id),
+                                             "--log-dir", str(tmp_path), "vision", "sensor_fusion",
+                                             "collision_avoidance", "hmi",
+                                             "-D", "collision_avoidance:config.alertSize=1.0"],
+                                  env={**quiet_env(), "DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    # not a terminal: a marker instead of colours, at the start of the application's text
+    launcher.wait_for(r"^hmi\s+\| >>> \+=+ !!! DRIVER ALERT !!! =+\+$", timeout=40)  # the HMI's box
+    launcher.wait_for(r"^hmi\s+\| \| Driver attention required +\|$")
+    launcher.wait_for(r"^collision_avoidance\s+\| >>> \S+ collision_avoidance: ALERT: driver attention needed")
+
+
+def test_the_launcher_verbose_shows_every_line(apps: AppRunner, domain_id: int, tmp_path: Path) -> None:
+    launcher = apps.start_command("launch", [*LAUNCH, "--mode", "background", "--domain", str(domain_id),
+                                             "--log-dir", str(tmp_path), "-v", "vision"], env=quiet_env())
+    launcher.wait_for(r"^vision\s+\| \S+ vision debug: published sample 2:")
+    started = time.monotonic()
+    launcher.stop()
+    assert time.monotonic() - started < 20
