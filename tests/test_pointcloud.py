@@ -13,7 +13,7 @@ from PIL import Image
 from automotive.bus.errors import ConfigError
 from automotive.cyclone import fastpath
 from automotive.sim.scene import BACKGROUND_RGB, GROUND_RGB, SHAPE_RGB, UNKNOWN_SHAPE_RGB, LidarScene, ScanGrid
-from automotive.tools.cloudview import render_png
+from automotive.tools.cloudview import CloudFigure, render_png
 from automotive.types.builtin_interfaces.msg.dds_ import Time_
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_, PointField_
 from automotive.types.std_msgs.msg.dds_ import Header_
@@ -246,9 +246,11 @@ def test_render_png_size_and_colours(tmp_path: Path, size: tuple[int, int]) -> N
     render_png(xyz, rgb, path, size=size)
     with Image.open(path) as image:
         assert image.format == "PNG" and image.size == size
-        pixels = np.asarray(image.convert("RGB")).reshape(-1, 3)
-    colours = {tuple(p) for p in np.unique(pixels, axis=0).tolist()}
-    assert SHAPE_RGB["RED"] in colours and BACKGROUND_RGB in colours and GROUND_RGB in colours
+        pixels = np.asarray(image.convert("RGB"))
+    for left, top, right, bottom in CloudFigure(size).panels.values():  # the legend has these colours too
+        panel = pixels[top:bottom, left:right].reshape(-1, 3)
+        colours = {tuple(p) for p in np.unique(panel, axis=0).tolist()}
+        assert SHAPE_RGB["RED"] in colours and BACKGROUND_RGB in colours and GROUND_RGB in colours
 
 
 def brute_force_hits(grid: ScanGrid, observer: npt.NDArray[np.float64], spheres: list[tuple[float, float, float, float]]
@@ -302,11 +304,13 @@ def test_ray_casting_matches_brute_force(grid: ScanGrid) -> None:
 
 
 def test_render_image_skips_points_it_cannot_place() -> None:
-    from automotive.tools.cloudview import render_image
+    from automotive.tools.cloudview import CloudFigure, render_image
 
-    assert render_image(np.empty((0, 3)), np.empty((0, 3), dtype=np.uint8), (64, 32)).shape == (32, 64, 3)
-    image = render_image(np.array([[np.nan, 0, 0], [1, 2, 0.5]]), np.array([[0, 0, 0], [255, 0, 0]]), (200, 100))
-    assert (image.reshape(-1, 3) == (255, 0, 0)).all(axis=1).any()
+    assert render_image(np.empty((0, 3)), np.empty((0, 3), dtype=np.uint8), (320, 160)).shape == (160, 320, 3)
+    figure = CloudFigure((400, 200))
+    image = figure.render(np.array([[np.nan, 0, 0], [1, 2, 0.5]]), np.array([[0, 0, 0], [255, 0, 0]]))
+    for left, top, right, bottom in figure.panels.values():  # the legend has red too: only the panels count
+        assert (image[top:bottom, left:right] == (255, 0, 0)).all(axis=2).any()
     with pytest.raises(ValueError, match="colours"):
         render_image(np.zeros((3, 3)), np.zeros((2, 3)))
 

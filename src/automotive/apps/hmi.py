@@ -3,8 +3,20 @@
 Data flow:  Alerts::DriverAlerts on AlertTopic (transient local: a late HMI shows the last state)  -->  alert box
 
 A WaitSet, not a listener, delivers the alerts: acknowledging an alert may take the driver a while, and that must not
-block DDS's receive thread. The alert box is a window (SDL2 through pygame) when a display is available, or a clearly
-marked box on the console (--ui console|window|auto). Losing and regaining the alert writer's liveliness is reported.
+block DDS's receive thread. The alert box is a window (SDL2 through pygame) or a clearly marked box on the console
+(--ui console|window|auto). ``--ui window`` without a usable display (automotive.bus.display) is bad input (one line,
+exit code 2, before the HMI joins the bus): SDL's offscreen and dummy drivers, which it falls back to silently, show
+no window and never pass for one. ``--ui auto`` then takes the console and says why.
+
+The box never shows "all clear" on silence. It tells apart:
+
+- no alert source: no alert writer has matched yet (grey);
+- no alert state yet: a live writer matched but has said nothing (grey);
+- all clear (green) or DRIVER ALERT (red): what a live, matched writer said last (a transient-local late join counts);
+- alert source lost: no live writer any more, its liveliness lost or the writer gone (amber, with the last alert).
+
+When the source comes back, what it said before the loss is shown again only if the very writer that said it is
+alive again; a new writer has to speak first. The window's title names the state (``HMI - all clear`` ...).
 
 Redundant mode (config.redundant=true): the alerts come from the stronger live of two collision_avoidance instances;
 each change of owner is reported in one line, the source is lost only when no writer is alive, and an alert state is
@@ -14,16 +26,27 @@ shown once however many writers repeat it.
 from __future__ import annotations
 
 import argparse
-import os
+import enum
+import logging
 import sys
 import time
+from collections import deque
+from dataclasses import dataclass
 from typing import Any, Protocol
 
-from automotive.bus.app import Application, run
-from automotive.bus.errors import ConfigError
+from cyclonedds.core import GuardCondition
+
+from automotive.bus.app import Application, build_parser, run
+from automotive.bus.cli import EXIT_BAD_INPUT
+from automotive.bus.display import NoWindow, open_pygame_display, open_window
 from automotive.bus.ownership import OwnerTracker
+from automotive.bus.properties import PropertyKeys
 from automotive.types.Alerts import DriverAlerts
 
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of(roles=["Alerts"])
+
+NAME = "hmi"
 ALERT_TEXTS = {
     "blindSpotDriver": "Vehicle in the blind spot, driver side",
     "blindSpotPassenger": "Vehicle in the blind spot, passenger side",
@@ -32,18 +55,121 @@ ALERT_TEXTS = {
     "parkingCollision": "Parking collision warning",
     "driverAttention": "Driver attention required",
 }
-WINDOW_TITLE_ALERT = "HMI - DRIVER ALERT"
-WINDOW_TITLE_CLEAR = "HMI - all clear"
 
 
 def alert_texts(alert: DriverAlerts) -> list[str]:
     return [text for flag, text in ALERT_TEXTS.items() if getattr(alert, flag)]
 
 
+class Shown(enum.Enum):
+    """What the alert box shows; the value is the window title's state."""
+
+    NO_SOURCE = "no alert source"
+    NO_STATE = "no alert state yet"
+    LOST = "alert source lost"
+    CLEAR = "all clear"
+    ALERT = "DRIVER ALERT"
+
+    @property
+    def window_title(self) -> str:
+        return f"HMI - {self.value}"
+
+
+WINDOW_TITLE_NO_SOURCE = Shown.NO_SOURCE.window_title
+WINDOW_TITLE_LOST = Shown.LOST.window_title
+WINDOW_TITLE_CLEAR = Shown.CLEAR.window_title
+WINDOW_TITLE_ALERT = Shown.ALERT.window_title
+
+
+@dataclass(frozen=True)
+class AlertView:
+    shown: Shown
+    texts: tuple[str, ...] = ()  # ALERT: the alerts; LOST: the alerts the source said last
+
+
+SOURCE_LINES = {
+    Shown.NO_SOURCE: "Collision avoidance not seen: no alert can be shown",
+    Shown.NO_STATE: "Collision avoidance live, has said nothing yet",
+    Shown.LOST: "Collision avoidance not alive: alerts may be missing",
+}
+
+
+def box_lines(view: AlertView) -> list[str]:
+    """The lines under the box's title."""
+    if view.shown is Shown.ALERT:
+        return list(view.texts)
+    if view.shown is Shown.CLEAR:
+        return ["No alert"]
+    return [SOURCE_LINES[view.shown], *(f"Last alert: {text}" for text in view.texts)]
+
+
+class SourceChange(enum.Enum):
+    FOUND = "found"
+    LOST = "lost"
+    BACK = "back"
+
+
+class AlertSource:
+    """What the HMI knows of its alert source (the alert writers) and what the source last said.
+
+    Fed, in the main thread, with the reader's match and liveliness events (their counts and the writer they name)
+    and with the alerts taken; :meth:`view` is what the driver is shown.
+    """
+
+    def __init__(self) -> None:
+        self.matched = 0
+        self.alive = 0
+        self.alive_writers: set[int] = set()
+        self.seen = False  # a live writer was there once: from then on its absence is a loss, not "no source"
+        self.live = False
+        self.texts: list[str] | None = None  # what the source last said; None: nothing a live writer stands for
+        self.said_by: int | None = None
+        self.lost_reason = ""
+
+    def matched_changed(self, current_count: int) -> SourceChange | None:
+        self.matched = current_count
+        return self._judge("no alert writer is matched any more")
+
+    def liveliness_changed(self, writer: int, alive_count: int, alive_change: int,
+                           not_alive_change: int) -> SourceChange | None:
+        if alive_change > 0:  # matched alive, or alive again
+            self.alive_writers.add(writer)
+        elif alive_change < 0:  # its liveliness lost, or it left while alive
+            self.alive_writers.discard(writer)
+        self.alive = alive_count
+        return self._judge("the alert writer's liveliness was lost" if not_alive_change > 0
+                           else "the alert writer left")
+
+    def said(self, texts: list[str], writer: int) -> None:
+        self.texts, self.said_by = texts, writer
+
+    def _judge(self, reason: str) -> SourceChange | None:
+        live = self.matched > 0 and self.alive > 0
+        if live == self.live:
+            return None
+        self.live = live
+        if not live:
+            self.lost_reason = reason
+            return SourceChange.LOST
+        if not self.seen:
+            self.seen = True
+            return SourceChange.FOUND
+        if self.said_by not in self.alive_writers:  # a new writer: what the lost one said is not its word
+            self.texts = None
+        return SourceChange.BACK
+
+    def view(self) -> AlertView:
+        if not self.seen:
+            return AlertView(Shown.NO_SOURCE)
+        if not self.live:
+            return AlertView(Shown.LOST, tuple(self.texts or ()))
+        if self.texts is None:
+            return AlertView(Shown.NO_STATE)
+        return AlertView(Shown.ALERT, tuple(self.texts)) if self.texts else AlertView(Shown.CLEAR)
+
+
 class AlertUI(Protocol):
-    def show(self, texts: list[str]) -> None: ...
-    def clear(self) -> None: ...
-    def source_alive(self, alive: bool) -> None: ...
+    def render(self, view: AlertView) -> None: ...
     def pump(self) -> None: ...
     def close(self) -> None: ...
 
@@ -52,23 +178,15 @@ class ConsoleUI:
     """A boxed, unmistakable alert on standard output."""
 
     WIDTH = 56
+    TITLES = {Shown.NO_SOURCE: "no alert source", Shown.NO_STATE: "no alert state yet",
+              Shown.LOST: "ALERT SOURCE LOST", Shown.CLEAR: "all clear", Shown.ALERT: "!!! DRIVER ALERT !!!"}
 
-    def _box(self, title: str, lines: list[str]) -> None:
+    def render(self, view: AlertView) -> None:
         inner = self.WIDTH - 2
-        print("+" + f" {title} ".center(inner, "=") + "+")
-        for line in lines:
+        print("+" + f" {self.TITLES[view.shown]} ".center(inner, "=") + "+")
+        for line in box_lines(view):
             print("| " + line.ljust(inner - 2) + " |")
         print("+" + "=" * inner + "+", flush=True)
-
-    def show(self, texts: list[str]) -> None:
-        self._box("!!! DRIVER ALERT !!!", texts)
-
-    def clear(self) -> None:
-        self._box("all clear", ["No alert"])
-
-    def source_alive(self, alive: bool) -> None:
-        if not alive:
-            self._box("ALERT SOURCE LOST", ["Collision avoidance is not alive: alerts may be missing"])
 
     def pump(self) -> None:
         pass
@@ -78,49 +196,41 @@ class ConsoleUI:
 
 
 class WindowUI:
-    """An SDL2 window (pygame): a red box with one line per alert, green when clear."""
+    """An SDL2 window (pygame): grey without a source or state, amber when the source is lost, red with one line per
+    alert, green when clear. Made by :meth:`open`, which refuses any driver that shows no window."""
 
     SIZE = (640, 260)
+    BOX_COLOURS = {Shown.NO_SOURCE: (110, 110, 110), Shown.NO_STATE: (110, 110, 110), Shown.LOST: (230, 140, 0),
+                   Shown.CLEAR: (0, 140, 0), Shown.ALERT: (200, 0, 0)}
+    TITLES = {Shown.NO_SOURCE: "No alert source", Shown.NO_STATE: "No alert state yet",
+              Shown.LOST: "Alert source lost", Shown.CLEAR: "All clear", Shown.ALERT: "DRIVER ALERT"}
+    MAX_LINES = 5  # what the box holds under its title
 
-    def __init__(self) -> None:
-        os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
-        import pygame
-
+    def __init__(self, pygame: Any) -> None:
         self.pygame = pygame
-        pygame.display.init()
         pygame.font.init()
-        self.screen = pygame.display.set_mode(self.SIZE)
+        self.screen = open_window(pygame, self.SIZE)
         self.title_font = pygame.font.Font(None, 48)
         self.text_font = pygame.font.Font(None, 32)
-        self.texts: list[str] = []
-        self.alive = True
-        self._draw()
+        self.render(AlertView(Shown.NO_SOURCE))
 
-    def _draw(self) -> None:
+    @classmethod
+    def open(cls) -> WindowUI:
+        return cls(open_pygame_display())
+
+    def render(self, view: AlertView) -> None:
         pygame = self.pygame
-        alert = bool(self.texts)
-        pygame.display.set_caption(WINDOW_TITLE_ALERT if alert else WINDOW_TITLE_CLEAR)
+        pygame.display.set_caption(view.shown.window_title)
         self.screen.fill((30, 30, 30))
         box = pygame.Rect(20, 20, self.SIZE[0] - 40, self.SIZE[1] - 40)
-        pygame.draw.rect(self.screen, (200, 0, 0) if alert else (0, 140, 0), box, border_radius=12)
-        title = "DRIVER ALERT" if alert else "All clear"
-        self.screen.blit(self.title_font.render(title, True, (255, 255, 255)), (box.x + 20, box.y + 16))
-        lines = self.texts + ([] if self.alive else ["Alert source lost"])
-        for index, line in enumerate(lines):
-            self.screen.blit(self.text_font.render(line, True, (255, 255, 0)), (box.x + 20, box.y + 70 + index * 30))
+        pygame.draw.rect(self.screen, self.BOX_COLOURS[view.shown], box, border_radius=12)
+        self.screen.blit(self.title_font.render(self.TITLES[view.shown], True, (255, 255, 255)),
+                         (box.x + 20, box.y + 16))
+        # Alerts in yellow on red; the source's state in white, readable on grey and amber.
+        colour = (255, 255, 0) if view.shown is Shown.ALERT else (255, 255, 255)
+        for index, line in enumerate(box_lines(view)[:self.MAX_LINES]):
+            self.screen.blit(self.text_font.render(line, True, colour), (box.x + 20, box.y + 70 + index * 30))
         pygame.display.flip()
-
-    def show(self, texts: list[str]) -> None:
-        self.texts = texts
-        self._draw()
-
-    def clear(self) -> None:
-        self.texts = []
-        self._draw()
-
-    def source_alive(self, alive: bool) -> None:
-        self.alive = alive
-        self._draw()
 
     def pump(self) -> None:
         for event in self.pygame.event.get():
@@ -132,80 +242,116 @@ class WindowUI:
         self.pygame.display.quit()
 
 
-def make_ui(choice: str) -> AlertUI:
+def open_ui(choice: str) -> tuple[AlertUI, str]:
+    """The alert box for ``--ui``, and why it is the console when a window was possible (auto), else "".
+
+    Raises NoWindow for ``--ui window`` without a window to show.
+    """
     if choice == "console":
-        return ConsoleUI()
-    if choice == "auto" and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
-        return ConsoleUI()
+        return ConsoleUI(), ""
     try:
-        return WindowUI()
-    except Exception as error:  # no pygame, or SDL cannot open the display
+        return WindowUI.open(), ""
+    except NoWindow as reason:
         if choice == "window":
-            raise ConfigError(f"--ui window: cannot open a window ({error})") from None
-        return ConsoleUI()
+            raise
+        return ConsoleUI(), str(reason)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ui", choices=["auto", "console", "window"], default="auto",
-                        help="alert box in a window (SDL2), on the console, or a window when a display exists")
+                        help="alert box in a window (SDL2), on the console, or a window when a display can be "
+                             "opened (auto)")
 
 
-def body(app: Application) -> None:
-    source_alive: list[bool] = []  # liveliness changes, appended by the listener thread, shown by the main loop
+def body(app: Application, ui: AlertUI, why_console: str) -> None:
+    # The reader's match and liveliness events, queued by the listener thread, judged by the main loop.
+    events: deque[tuple[str, int, int, int, int]] = deque()
+    wake = GuardCondition(app.bus.participant)  # a source event wakes the loop at once, not at its next timeout
 
     def on_status(event: str, topic: str, status: Any) -> None:
-        # The source is lost when no alert writer is alive (a hot standby may still be), back when one is again.
-        if event == "liveliness_changed" and (status.not_alive_count_change > 0 or status.alive_count_change > 0):
-            source_alive.append(status.alive_count > 0)
+        if event == "subscription_matched":
+            events.append((event, status.last_publication_handle, status.current_count, 0, 0))
+        elif event == "liveliness_changed":
+            events.append((event, status.last_publication_handle, status.alive_count, status.alive_count_change,
+                           status.not_alive_count_change))
+        else:
+            return
+        wake.set(True)
 
     alerts = app.reader("Alerts", DriverAlerts, "AlertTopic", hook=on_status)
     topic = alerts.topic.get_name()
     owner = OwnerTracker(alerts, app.log, app.stats)
-    ui = make_ui(app.args.ui)
-    app.log.info("HMI: %s alert box, waiting for alerts", "window" if isinstance(ui, WindowUI) else "console")
+    window = isinstance(ui, WindowUI)
+    source = AlertSource()
+    view = source.view()
+    ui.render(view)
+    app.log.info("HMI: %s alert box%s, waiting for alerts; %s", "window" if window else "console",
+                 f" (no window: {why_console})" if why_console else "", view.shown.value)
+    waitset = app.waitset(alerts)
+    waitset.attach(wake)
 
     shown: list[str] | None = None
-    source_lost = False
-    try:
-        for _ in app.wake_ups(app.waitset(alerts), timeout_s=0.05 if isinstance(ui, WindowUI) else 1.0):
-            ui.pump()
-            while source_alive:
-                alive = source_alive.pop(0)
-                if alive != source_lost:  # no change: a writer came or went while another stayed alive
-                    continue
-                if not alive:
-                    app.log.warning("alert source LOST: the alert writer's liveliness was lost")
+    # With the console box, the box is what shows a change; its log line is a duplicate, for -v and the log files.
+    shown_level = logging.INFO if window else logging.DEBUG
+    for _ in app.wake_ups(waitset, timeout_s=0.05 if window else 1.0):
+        ui.pump()
+        wake.set(False)  # before draining: an event queued from now on sets it again
+        while events:
+            event, writer, count, alive_change, not_alive_change = events.popleft()
+            if event == "subscription_matched":
+                change = source.matched_changed(count)
+            else:
+                change = source.liveliness_changed(writer, count, alive_change, not_alive_change)
+            if change is SourceChange.FOUND:
+                app.log.info("alert source found: a live alert writer matched")
+            elif change is SourceChange.LOST:
+                app.log.warning("alert source LOST: %s", source.lost_reason)
+                # what the driver is told: lost (why: a writer that left cleanly, at a shutdown, counts too), or back
+                app.stats.record("source", alive=False, reason=source.lost_reason)
+            elif change is SourceChange.BACK:
+                app.log.info("alert source back: the alert writer's liveliness was regained%s",
+                             "" if source.texts is not None else " (a new writer: no alert state from it yet)")
+                app.stats.record("source", alive=True)
+        taken = alerts.take(N=100)
+        taken_ns = time.time_ns()
+        for alert in taken:
+            if not isinstance(alert, DriverAlerts):
+                continue
+            info: Any = alert.sample_info  # type: ignore[attr-defined]
+            app.stats.record("take", topic=topic, src=info.source_timestamp, at=taken_ns,
+                             attention=alert.driverAttention)
+            owner.follow(alert)
+            texts = alert_texts(alert)
+            source.said(texts, info.publication_handle)
+            if texts != shown:  # the writer repeats an active alert; the driver sees each change once
+                if texts:
+                    app.log.log(shown_level, "DRIVER ALERT: %s", "; ".join(texts))
+                    app.stats.record("shown", state="alert", texts=texts)
                 else:
-                    app.log.info("alert source back: the alert writer's liveliness was regained")
-                source_lost = not alive
-                app.stats.record("source", alive=alive)  # what the driver is told: lost, or back
-                ui.source_alive(alive)
-            taken = alerts.take(N=100)
-            taken_ns = time.time_ns()
-            for alert in taken:
-                if not isinstance(alert, DriverAlerts):
-                    continue
-                app.stats.record("take", topic=topic, src=alert.sample_info.source_timestamp,  # type: ignore[attr-defined]
-                                 at=taken_ns, attention=alert.driverAttention)
-                owner.follow(alert)
-                texts = alert_texts(alert)
-                if texts != shown:  # the writer repeats an active alert; the driver sees each change once
-                    if texts:
-                        app.log.info("DRIVER ALERT: %s", "; ".join(texts))
-                        app.stats.record("shown", state="alert", texts=texts)
-                        ui.show(texts)
-                    else:
-                        app.log.info("all clear")
-                        app.stats.record("shown", state="clear", texts=[])
-                        ui.clear()
-                    shown = texts
-                app.tick()
-    finally:
-        ui.close()
+                    app.log.log(shown_level, "all clear")
+                    app.stats.record("shown", state="clear", texts=[])
+                shown = texts
+            app.tick()
+        if source.view() != view:
+            view = source.view()
+            ui.render(view)
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("hmi", __doc__ or "", body, argv, add_arguments)
+    description = __doc__ or ""
+    # The alert box is opened before the application exists: a window that cannot be shown is bad input, refused
+    # before the HMI creates its DDS participant. (The command line is parsed again by run: the same parser.)
+    parser = build_parser(NAME, description, add_arguments)
+    args = parser.parse_args(argv)
+    try:
+        ui, why_console = open_ui(args.ui)
+    except NoWindow as reason:
+        print(f"{parser.prog}: --ui window: {reason}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        return run(NAME, description, lambda app: body(app, ui, why_console), argv, add_arguments, keys=PROPERTY_KEYS)
+    finally:
+        ui.close()
 
 
 if __name__ == "__main__":

@@ -1,10 +1,21 @@
 """Point-cloud viewer: subscribes rt/LidarTopic and shows each cloud as a perspective view and a top view.
 
-    python -m automotive.tools.lidar_view --snapshot cloud.png [--count N] [--timeout S]   # a PNG of the Nth cloud,
-    then exit python -m automotive.tools.lidar_view [--ui window]                                     # a live window
-    (needs a display)
+    python -m automotive.tools.lidar_view --snapshot cloud.png [--count N] [--timeout S]   # a PNG of the Nth cloud
+    python -m automotive.tools.lidar_view [--ui auto|window|none]         # a live window, or log lines
 
-Data flow:  sensor_msgs::msg::dds_::PointCloud2_ on rt/LidarTopic  -->  PNG file or window
+Data flow:  sensor_msgs::msg::dds_::PointCloud2_ on rt/LidarTopic  -->  PNG file, window or log lines
+
+Where the clouds go: ``--snapshot`` writes a PNG and needs no display. Otherwise ``--ui window`` shows them in a
+window, and without a usable display (automotive.bus.display: no DISPLAY or WAYLAND_DISPLAY, one SDL cannot open,
+or SDL's offscreen or dummy driver, which show no window) is bad input: one line, exit code 2, before the view joins
+the bus. ``--ui none`` logs a line per config.logEvery clouds and the status line. ``--ui auto`` (the default) is the
+window where a display can show one, and else those log lines, which is what the view can still do without a
+display: it says why in one line, and that ``--snapshot FILE`` gives a picture without one.
+
+The picture (automotive.tools.cloudview) has axes in metres, a legend of the LiDAR's colours (Shapes Demo circles
+are spheres in their own colour; grey: the background sphere; dark grey: the ground) and a title that stays put;
+the cloud number, point count, rate and stamp are in a status box. The window keeps the title as its caption and is
+made smaller (same proportions) when config.imageWidth x config.imageHeight would not fit the screen.
 
 Any PointCloud2 with x, y, z and rgb (or rgba) fields is shown, whatever its layout (offsets, point_step, padded rows,
 byte order), so clouds of other publishers show too. The reader's QoS profile (qos.Lidar.Profile, LidarView by
@@ -15,43 +26,84 @@ default writers of other DDS and ROS 2 publishers alike.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
+from collections import deque
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-from automotive.bus.app import Application, run
+from automotive.bus.app import Application, build_parser, run
 from automotive.bus.badsamples import BadSample
 from automotive.bus.checkedreader import CheckedReader
+from automotive.bus.cli import EXIT_BAD_INPUT
+from automotive.bus.display import NoWindow, open_pygame_display, open_window
 from automotive.bus.errors import ConfigError
-from automotive.tools.cloudview import render_image, render_png
+from automotive.bus.properties import PropertyKeys
+from automotive.tools.cloudview import MIN_SIZE, CloudFigure
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.wire.pointcloud import decode_point_cloud2
 
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of("config.imageWidth", "config.imageHeight", "config.pointRadius", "config.windowRate",
+                                "config.logEvery", roles=["Lidar"])
+
+NAME = "lidar_view"
+COMMAND = "automotive lidar-view"
 WINDOW_TITLE = "LiDAR point cloud"
+SNAPSHOT_HINT = "--snapshot FILE writes a picture without a display"
+# Room a window leaves on its screen: its decorations (title bar, borders) and a desktop panel. A 1280x720 screen
+# takes pictures of up to 1256x640.
+SCREEN_MARGIN = (24, 80)
+RATE_WINDOW = 20  # the rate shown is over the last this many clouds received
+
+
+def fit_to_screen(size: tuple[int, int], screen: tuple[int, int]) -> tuple[int, int]:
+    """``size``, or smaller in the same proportions so that a window of it fits ``screen`` with SCREEN_MARGIN."""
+    room = (screen[0] - SCREEN_MARGIN[0], screen[1] - SCREEN_MARGIN[1])
+    scale = min(1.0, room[0] / size[0], room[1] / size[1])
+    return max(MIN_SIZE[0], int(size[0] * scale)), max(MIN_SIZE[1], int(size[1] * scale))
+
+
+@dataclass(frozen=True)
+class Display:
+    """Where the live view goes: pygame with its display open for the window, or None and why there is no window
+    ("" when none was wanted: --ui none, --snapshot)."""
+
+    pygame: Any | None
+    why_no_window: str = ""
+
+
+def open_display(choice: str, snapshot: Path | None) -> Display:
+    """The display for ``--ui``; raises NoWindow for ``--ui window`` without a usable one."""
+    if snapshot is not None or choice == "none":
+        return Display(None)
+    try:
+        return Display(open_pygame_display())
+    except NoWindow as reason:
+        if choice == "window":
+            raise
+        return Display(None, str(reason))
 
 
 class CloudWindow:
-    """An SDL2 window (pygame) showing the latest picture."""
+    """An SDL2 window (pygame) showing the latest picture, under a caption that does not change. Opened on a display
+    of :func:`automotive.bus.display.open_pygame_display`; raises NoWindow if SDL cannot open the window there."""
 
-    def __init__(self, size: tuple[int, int]):
-        os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
-        import pygame
-
+    def __init__(self, pygame: Any, size: tuple[int, int], title: str):
         self.pygame = pygame
-        pygame.display.init()
-        self.screen = pygame.display.set_mode(size)
-        pygame.display.set_caption(f"{WINDOW_TITLE}: waiting for data")
+        screens = pygame.display.get_desktop_sizes()
+        self.size = fit_to_screen(size, screens[0]) if screens else size
+        self.screen = open_window(pygame, self.size)
+        pygame.display.set_caption(title)
 
-    def show(self, image: npt.NDArray[np.uint8], caption: str) -> None:
+    def show(self, image: npt.NDArray[np.uint8]) -> None:
         height, width = image.shape[:2]
-        surface = self.pygame.image.frombuffer(image.tobytes(), (width, height), "RGB")
+        surface = self.pygame.image.frombuffer(np.ascontiguousarray(image).data, (width, height), "RGB")
         self.screen.blit(surface, (0, 0))
-        self.pygame.display.set_caption(f"{WINDOW_TITLE}: {caption}")
         self.pygame.display.flip()
 
     def pump(self) -> None:
@@ -63,17 +115,17 @@ class CloudWindow:
         self.pygame.display.quit()
 
 
-def make_window(choice: str, size: tuple[int, int]) -> CloudWindow | None:
-    if choice == "none":
-        return None
-    if choice == "auto" and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
-        return None
+def make_window(app: Application, display: Display, size: tuple[int, int],
+                title: str) -> tuple[CloudWindow | None, str]:
+    """The window on ``display``, or None and why not ("" when none was wanted)."""
+    if display.pygame is None:
+        return None, display.why_no_window
     try:
-        return CloudWindow(size)
-    except Exception as error:  # no pygame, or SDL cannot open the display
-        if choice == "window":
-            raise ConfigError(f"--ui window: cannot open a window ({error})") from None
-        return None
+        return CloudWindow(display.pygame, size, title), ""
+    except NoWindow as reason:  # the display opened but refused the window: rare, and only known now
+        if app.args.ui == "window":
+            raise ConfigError(f"--ui window: {reason}") from None
+        return None, str(reason)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -82,7 +134,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timeout", type=float, default=0.0, metavar="S",
                         help="with --snapshot: give up (exit 2) if no cloud came within S seconds (0: wait forever)")
     parser.add_argument("--ui", choices=["auto", "window", "none"], default="auto",
-                        help="live window: when a display exists (auto), always, or never (log lines only)")
+                        help="live window: when a display can show one (auto; else log lines), always (an error "
+                             "without a usable display), or never (log lines only)")
 
 
 def describe(cloud: PointCloud2_) -> str:
@@ -95,9 +148,37 @@ def latest_clouds(reader: Any) -> list[PointCloud2_]:
     return [sample for sample in reader.take(N=16) if isinstance(sample, PointCloud2_)]
 
 
-def body(app: Application) -> None:
-    width = app.props.get_int("config.imageWidth", 1600, minimum=32, maximum=8192)
-    height = app.props.get_int("config.imageHeight", 800, minimum=16, maximum=8192)
+class CloudRate:
+    """Clouds received a second, over the last RATE_WINDOW clouds.
+
+    Timed by the writer's source timestamps: one wake-up may take several clouds at once, so the time they are taken
+    says little about how far apart they were sent."""
+
+    def __init__(self) -> None:
+        self.stamps_ns: deque[int] = deque(maxlen=RATE_WINDOW + 1)
+
+    def received(self, cloud: PointCloud2_) -> None:
+        info = getattr(cloud, "sample_info", None)
+        if info is not None:
+            self.stamps_ns.append(info.source_timestamp)
+
+    def per_second(self) -> float | None:
+        if len(self.stamps_ns) < 2 or self.stamps_ns[-1] <= self.stamps_ns[0]:
+            return None
+        return (len(self.stamps_ns) - 1) * 1e9 / (self.stamps_ns[-1] - self.stamps_ns[0])
+
+
+def status_line(number: int, cloud: PointCloud2_, rate: float | None) -> str:
+    """What changes from cloud to cloud, in fixed-width fields: the status box keeps its size and place."""
+    stamp = cloud.header_.stamp_
+    per_second = f"{rate:5.1f}" if rate is not None else "    -"
+    return (f"cloud {number:<7d} {cloud.width_ * cloud.height_:>6d} points  {per_second} clouds/s  "
+            f"stamp {stamp.sec_}.{stamp.nanosec_:09d}  frame '{cloud.header_.frame_id_}'")
+
+
+def body(app: Application, display: Display) -> None:
+    width = app.props.get_int("config.imageWidth", 1600, minimum=MIN_SIZE[0], maximum=8192)
+    height = app.props.get_int("config.imageHeight", 800, minimum=MIN_SIZE[1], maximum=8192)
     point_radius = app.props.get_int("config.pointRadius", 1, minimum=0, maximum=10)
     max_rate = app.props.get_float("config.windowRate", 10, minimum=0.1)
     log_every = app.props.get_int("config.logEvery", 20, minimum=0)
@@ -114,14 +195,24 @@ def body(app: Application) -> None:
     size = (width, height)
 
     reader = app.reader("Lidar", PointCloud2_, "rt/LidarTopic")
-    window = make_window(app.args.ui, size) if snapshot is None else None
+    title = f"{WINDOW_TITLE}: {reader.topic.name}"
+    window, why_no_window = make_window(app, display, size, title)
+    figure: CloudFigure | None = None
     if snapshot is not None:
         app.log.info("lidar view: waiting for cloud %d on %s for %s", wanted, reader.topic.name, snapshot)
+    elif window is not None:
+        app.log.info("lidar view: window on %s (%dx%d)", reader.topic.name, *window.size)
     else:
-        app.log.info("lidar view: %s on %s", "window" if window else "log lines only", reader.topic.name)
+        app.log.info("lidar view: log lines only on %s%s", reader.topic.name,
+                     f" (no window: {why_no_window}; {SNAPSHOT_HINT})" if why_no_window else "")
+    if window is not None:
+        figure = CloudFigure(window.size, point_radius, title)
+        window.show(figure.render(np.empty((0, 3)), np.empty((0, 3), dtype=np.uint8),
+                                  f"waiting for a point cloud on {reader.topic.name}"))
 
     started = time.monotonic()
     received = 0
+    rate = CloudRate()
     next_view = 0.0
     try:
         for _ in app.wake_ups(app.waitset(reader), timeout_s=0.05 if window else 0.5):
@@ -133,6 +224,7 @@ def body(app: Application) -> None:
             show: PointCloud2_ | None = None
             for cloud in clouds:
                 received += 1
+                rate.received(cloud)
                 if log_every and (received == 1 or received % log_every == 0):
                     app.log.info("cloud %d: %s", received, describe(cloud))
                 if snapshot is not None:
@@ -155,14 +247,16 @@ def body(app: Application) -> None:
                 else:
                     app.log.warning("cannot show a cloud: %s", error)
                 continue
+            status = status_line(received, show, rate.per_second())
             if snapshot is not None:
-                render_png(xyz, rgb, snapshot, size, point_radius)
+                figure = CloudFigure(size, point_radius, title)
+                figure.save_png(figure.render(xyz, rgb, status), snapshot)
                 app.log.info("snapshot of cloud %d written to %s (%dx%d): %s", received, snapshot, width, height,
                              describe(show))
                 app.stop()
                 return
-            assert window is not None
-            window.show(render_image(xyz, rgb, size, point_radius), describe(show))
+            assert window is not None and figure is not None
+            window.show(figure.render(xyz, rgb, status))
             next_view = time.monotonic() + 1 / max_rate
     finally:
         if window is not None:
@@ -174,7 +268,22 @@ class SnapshotTimeout(ConfigError):
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("lidar_view", __doc__ or "", body, argv, add_arguments)
+    description = __doc__ or ""
+    # The display is opened before the view exists: a window that cannot be shown is bad input, refused before the
+    # view creates its DDS participant. (The command line is parsed again by run: the same parser.)
+    parser = build_parser(NAME, description, add_arguments, COMMAND)
+    args = parser.parse_args(argv)
+    try:
+        display = open_display(args.ui, args.snapshot)
+    except NoWindow as reason:
+        print(f"{parser.prog}: --ui window: {reason}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        return run(NAME, description, lambda app: body(app, display), argv, add_arguments, command=COMMAND,
+                   keys=PROPERTY_KEYS)
+    finally:
+        if display.pygame is not None:  # the window's close did it, unless the view ended before its window
+            display.pygame.display.quit()
 
 
 if __name__ == "__main__":
