@@ -363,7 +363,7 @@ def test_lidar_sees_only_the_circles_its_filter_accepts(apps: Any, domain_id: in
     for shapes in (red, blue, big_green):
         shapes.wait_for(r"\[Circle\] writer matched a reader", TIMEOUT)
     blue.wait_for(r"Circle BLUE at \(", TIMEOUT, count=2)  # BLUE has written since it matched the lidar...
-    lidar.wait_for_more(r"lidar: frame \d+:", 2, TIMEOUT)  # ... and the lidar has taken its circles since
+    lidar.wait_for_more(r"lidar debug: frame \d+:", 2, TIMEOUT)  # ... and the lidar has taken its circles since
     assert "shape BLUE" not in lidar.output
 
 

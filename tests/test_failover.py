@@ -102,7 +102,7 @@ class RedundantSystem:
         numbers = [int(n) for n in re.findall(r"vehicle_platform debug: command (\d+) stamped", self.platform.output)]
         assert numbers, self.platform.output[-2000:]
         assert all(a < b for a, b in zip(numbers, numbers[1:])), f"a command number went back: {numbers}"
-        shown = re.findall(r"hmi: (DRIVER ALERT|all clear)", self.hmi.output)
+        shown = re.findall(r"hmi debug: (DRIVER ALERT|all clear)", self.hmi.output)
         assert shown, self.hmi.output[-2000:]
         assert all(a != b for a, b in zip(shown, shown[1:])), f"an alert state was shown twice in a row: {shown}"
 

@@ -122,8 +122,9 @@ def check_decoded(lines: list[dict[str, Any]], flows: list[Flow], payloads: dict
     assert not silent, f"{source}: no message on {silent}"
 
     # The system's inputs, as Foxglove shows them.
-    assert alert_states(by_topic["AlertTopic"]) == [True, False], f"{source}: alerts {by_topic['AlertTopic']}"
-    assert {name: value for name, value in by_topic["AlertTopic"][0].items() if value} == {"driverAttention": True}
+    # collision avoidance's first verdict (all clear), the alert, all clear again
+    assert alert_states(by_topic["AlertTopic"]) == [False, True, False], f"{source}: alerts {by_topic['AlertTopic']}"
+    assert {name: value for name, value in by_topic["AlertTopic"][1].items() if value} == {"driverAttention": True}
     for scan in by_topic["rt/LidarTopic"]:
         assert (scan["data"]["bytes"], scan["width"] * scan["height"], scan["point_step"],
                 scan["header"]["frame_id"], [field["name"] for field in scan["fields"]]) == (
@@ -176,7 +177,7 @@ def test_foxglove_decodes_every_channel_of_a_recording_and_of_the_bridge(  # typ
             tool.wait_for(rf"\[{re.escape(topic)}\] reader matched a writer", timeout=TIMEOUT)
     vision = apps.start("vision", *domain, "-D", f"dataFile={scene(tmp_path / 'scene.csv', VISION_ROWS, TALL_ROWS)}",
                         "--count", str(VISION_ROWS))
-    avoidance.wait_for(r"all clear", timeout=TIMEOUT)
+    avoidance.wait_for(r"all clear", count=2, timeout=TIMEOUT)  # its first verdict, then the alert's end
     assert vision.wait_exit(timeout=TIMEOUT) == 0, vision.output
     assert camera.wait_exit(timeout=TIMEOUT) == 0, camera.output
     recorder.wait_for(rf" CameraImageData={CAMERA_FRAMES}/", timeout=TIMEOUT)

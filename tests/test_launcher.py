@@ -136,7 +136,7 @@ def test_an_application_that_dies_is_reported_with_its_exit_code(apps, domain_id
 
 def test_an_application_that_does_not_stop_is_killed_after_the_stop_timeout(apps,  # type: ignore[no-untyped-def]
                                                                             domain_id: int, tmp_path: Path) -> None:
-    launcher = apps.start_command("launch", [*LAUNCH, "--mode", "background", "--domain", str(domain_id),
+    launcher = apps.start_command("launch", [*LAUNCH, "--mode", "background", "-v", "--domain", str(domain_id),
                                              "--log-dir", str(tmp_path), "--stop-timeout", "5", "vision", "hmi"],
                                   env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
     pids = started_pids(launcher)
@@ -160,7 +160,7 @@ def test_one_ctrl_c_delivered_twice_stops_cleanly_and_a_later_second_one_kills(a
                                                                                tmp_path: Path) -> None:
     # `timeout -s INT 60 scripts/launch` delivers its interrupt to the launcher and to its process group: one stop,
     # not the "second Ctrl-C" that kills without waiting.
-    launcher = apps.start_command("launch", [*LAUNCH, "--mode", "background", "--domain", str(domain_id),
+    launcher = apps.start_command("launch", [*LAUNCH, "--mode", "background", "-v", "--domain", str(domain_id),
                                              "--log-dir", str(tmp_path), "--stop-timeout", "60", "vision", "hmi"],
                                   env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
     pids = started_pids(launcher)

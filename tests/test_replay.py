@@ -82,13 +82,13 @@ def test_replayed_drive_gives_the_recorded_alerts(apps, domain_id: int, tmp_path
     recorder.wait_for(r"\[AlertTopic\] reader matched a writer", timeout=TIMEOUT)
     apps.start("vision", *live, "-D", "config.pubInterval=100", "-D",
                f"dataFile={two_alert_scene(tmp_path / 'scene.csv')}", "--count", str(ROWS))
-    avoidance.wait_for(r"all clear", count=2, timeout=TIMEOUT)
+    avoidance.wait_for(r"all clear", count=3, timeout=TIMEOUT)  # its first verdict, then after each alert
     stop_after_quiet(recorder)
     recorded = alert_states(drive)
     attention = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False,
                              backCollision=False, parkingCollision=False, driverAttention=True)
-    assert [DriverAlerts.deserialize(data).driverAttention for data in recorded] == [True, False, True, False]
-    assert DriverAlerts.deserialize(recorded[0]) == attention
+    assert [DriverAlerts.deserialize(data).driverAttention for data in recorded] == [False, True, False, True, False]
+    assert DriverAlerts.deserialize(recorded[1]) == attention
     assert len(messages(drive, "VisionTopic")) >= ROWS - 5  # best effort: the first rows may precede discovery
 
     again = tmp_path / "again.mcap"
@@ -97,7 +97,7 @@ def test_replayed_drive_gives_the_recorded_alerts(apps, domain_id: int, tmp_path
     recorder.wait_for(r"\[AlertTopic\] reader matched a writer", timeout=TIMEOUT)
     replay = apps.start("replay", str(drive), *replayed, "--topics", "VisionTopic", "--wait-readers", "1")
     assert replay.wait_exit(timeout=TIMEOUT) == 0, replay.output
-    avoidance.wait_for(r"all clear", count=2, timeout=TIMEOUT)
+    avoidance.wait_for(r"all clear", count=3, timeout=TIMEOUT)
     stop_after_quiet(recorder)
     assert alert_states(again) == recorded
 

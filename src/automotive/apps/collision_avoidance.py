@@ -41,6 +41,7 @@ ALL_CLEAR = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontC
                          parkingCollision=False, driverAttention=False)
 # Redundant mode: how long a new instance waits for the owner's commands before it numbers its own from 1.
 JOIN_S = 1.0
+ALERT_STATES = {None: "not judged yet (no object list)", True: "DRIVER ATTENTION", False: "none"}
 ATTENTION = DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False, backCollision=False,
                          parkingCollision=False, driverAttention=True)
 
@@ -121,9 +122,6 @@ def body(app: Application) -> None:
         objects_reader.use_views()
     status_reader = app.reader("PlatformStatus", PlatformStatus, "PlatformStatus")
     alert_writer = app.writer("Alerts", DriverAlerts, "AlertTopic")
-    # Said once at start (transient local: an HMI that joins later gets it too), so that the HMI shows "all clear"
-    # because a live collision avoidance says so, not because it heard nothing.
-    alert_writer.write(ALL_CLEAR, timestamp=time.time_ns())
     control_writer = app.writer("PlatformControl", PlatformControl, "PlatformControl")
     topics = {"objects": objects_reader.topic.get_name(), "alerts": alert_writer.topic.get_name(),
               "commands": control_writer.topic.get_name()}
@@ -131,10 +129,12 @@ def body(app: Application) -> None:
     commands = Commands(app, control_writer, app.redundant)
     stall_guard = StallGuard(control_writer, app.log)  # redundant mode: no answers to lists missed while stalled
 
-    alert_active = False
+    # None until the first object list is judged: that verdict is said whatever it is (an HMI then shows "all clear"
+    # because a live collision avoidance said so, never on silence); then each change, and an alert while it lasts.
+    alert_active: bool | None = None
     status_count = 0
     last_command: list[str] = []
-    app.status_figure = lambda: (f"alert: {'DRIVER ATTENTION' if alert_active else 'none'}"
+    app.status_figure = lambda: (f"alert: {ALERT_STATES[alert_active]}"
                                  + (f"; {last_command[0]}" if last_command else "; no command yet"))
     for _ in app.wake_ups(app.waitset(objects_reader, status_reader)):
         status_count += len(status_reader.take(N=1000))  # read, and otherwise ignored, as in the original
@@ -152,11 +152,11 @@ def body(app: Application) -> None:
                 stamp = time.time_ns()
                 alert_writer.write(ATTENTION, timestamp=stamp)
                 app.stats.record("write", topic=topics["alerts"], src=stamp, inputs=[source], attention=True)
-                if not alert_active:
+                if alert_active is not True:
                     app.log.info("ALERT: driver attention needed (an object taller than %.1f m)", alert_size)
                     app.stats.record("alert", state="alert")
                 alert_active = True
-            elif alert_active:
+            elif alert_active is not False:
                 stamp = time.time_ns()
                 alert_writer.write(ALL_CLEAR, timestamp=stamp)
                 app.stats.record("write", topic=topics["alerts"], src=stamp, inputs=[source], attention=False)
