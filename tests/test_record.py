@@ -1,10 +1,14 @@
 """automotive.tools.record: a recording read back with the official `mcap` library and with `rosbags` (an independent
-reader), every field of known samples equal; a killed recorder's file; Ctrl-C and SIGTERM; bad input."""
+reader), every field of known samples equal; a killed recorder's file; Ctrl-C and SIGTERM; a full disk (a small tmpfs
+of the test's own, in a mount namespace); bad input."""
 
 from __future__ import annotations
 
+import os
 import re
+import shutil
 import signal
+import struct
 import time
 from pathlib import Path
 from typing import Any
@@ -15,10 +19,15 @@ from alert_sequence import alert_for, number_of
 from dds_helpers import wait_until
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Channel, Schema
+from mcap.writer import CompressionType, Writer
 from rosbags.highlevel import AnyReader
 
 from automotive.bus.endpoints import Databus
 from automotive.sim.scene import LidarScene, ScanGrid
+from automotive.tools.children import Child, program_command
+from automotive.tools.flows import system_flows
+from automotive.tools.record import EXIT_WRITE_FAILED, file_end, index_chunks
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
@@ -201,11 +210,14 @@ def test_duration_ends_the_recording(apps, domain_id: int, tmp_path: Path) -> No
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--output", "{tmp}/missing/x.mcap"], r"^record: --output .*/missing/x.mcap: cannot write \(No such file"),
-    (["--output", "{tmp}/exists.mcap"], r"^record: --output .*/exists.mcap: the file exists \(add --overwrite"),
+    (["--output", "{tmp}/missing/x.mcap"],
+     r"^(automotive )?record: argument --output/-o: .*/missing/x.mcap: folder .*/missing does not exist"),
+    (["--output", "{tmp}"], r"^(automotive )?record: argument --output/-o: .*: is a folder, not a file"),
+    (["--output", "{tmp}/exists.mcap"],
+     r"^(automotive )?record: --output .*/exists.mcap: the file exists \(add --overwrite"),
     (["--output", "{tmp}/x.mcap", "--topics", "VisionTopic,Nope"],
-     r"^record: --topics: unknown topic\(s\) Nope \(known: VisionTopic, rt/LidarTopic, .*Circle\)"),
-    (["--output", "{tmp}/x.mcap", "-D", "config.compression=brotli"], r"^record: .*config.compression"),
+     r"^(automotive )?record: --topics: unknown topic\(s\) Nope \(known: VisionTopic, rt/LidarTopic, .*Circle\)"),
+    (["--output", "{tmp}/x.mcap", "-D", "config.compression=brotli"], r"^(automotive )?record: .*config.compression"),
 ])
 def test_bad_input_is_one_line(apps, domain_id: int, tmp_path: Path, args: list[str], message: str) -> None:  # type: ignore[no-untyped-def]
     (tmp_path / "exists.mcap").write_bytes(b"keep me")
@@ -215,3 +227,136 @@ def test_bad_input_is_one_line(apps, domain_id: int, tmp_path: Path, args: list[
     assert len(result.stderr.strip().splitlines()) == 1, result.stderr
     assert re.search(message, result.stderr), result.stderr
     assert (tmp_path / "exists.mcap").read_bytes() == b"keep me"
+
+
+
+# -- a write that fails ----------------------------------------------------------------------------------------------
+# The recorder in a mount namespace of its own, writing into a 4 MB tmpfs mounted there (the test's network namespace
+# is shared: DDS on loopback reaches it); the shell copies the file out once the recorder has ended, before the
+# namespace and its tmpfs go.
+FULL_DISK = """
+disk=$1 out=$2
+shift 2
+mount -t tmpfs -o size=4m tmpfs "$disk" || exit 90
+"$@" 2>"$out/stderr"
+status=$?
+cp "$disk/drive.mcap" "$out/drive.mcap"
+exit $status
+"""
+TMPFS_BYTES = 4 * 1024 * 1024
+ENDED = re.compile(r"(automotive )?record: (?P<path>\S+): No space left on device; recording stopped: the file ends "
+                   r"(properly|with a footer but no index) with (?P<held>\d+) message\(s\) of 1 topic\(s\) "
+                   r"\(rt/LidarTopic=(?P=held)\), (?P<size>\d+) bytes; (?P<left>\d+) received sample\(s\) are not in "
+                   r"it")
+
+
+def test_a_full_disk_stops_the_recorder_with_a_file_both_readers_read_to_its_end(  # type: ignore[no-untyped-def]
+        bus: Databus, domain_id: int, tmp_path: Path) -> None:
+    disk, out = tmp_path / "disk", tmp_path / "out"
+    disk.mkdir()
+    out.mkdir()
+    recorder = Child("record-on-a-full-disk", [
+        "unshare", "--mount", "--propagation", "private", "sh", "-c", FULL_DISK, "full-disk", str(disk), str(out),
+        *program_command("record", "--domain", str(domain_id), "--topics", "rt/LidarTopic", "--output",
+                         str(disk / "drive.mcap"))], new_session=True)
+    try:
+        recorder.wait_for(r"recording 1 topic", timeout=TIMEOUT)
+        lidar = matched_writer(bus, recorder, "rt/LidarTopic", PointCloud2_, "Lidar")
+        sample = LidarScene(ScanGrid(azimuth_steps=180, polar_steps=32), seed=3).point_cloud2(1_763_800_000, 0)
+        assert len(sample.data_) == 92_160  # 4 MB fill after some 45 clouds
+        sent = 0
+        deadline = time.monotonic() + TIMEOUT
+        while recorder.poll() is None:  # numbered clouds, each acknowledged before the next: none lost, in order
+            assert time.monotonic() < deadline, f"the recorder never stopped:\n{recorder.output[-3000:]}"
+            sent += 1
+            sample.header_.stamp_.nanosec_ = sent
+            lidar.write(sample)
+            lidar.wait_for_acks(int(TIMEOUT * 1e9))  # at once when the recorder has gone
+        status = recorder.wait_exit(timeout=TIMEOUT)
+    finally:
+        recorder.stop(group=True)  # the shell and the recorder both, if the test ends early
+    stderr = (out / "stderr").read_text()
+    assert status == EXIT_WRITE_FAILED, f"{recorder.output}\n{stderr}"
+    assert "Traceback" not in stderr + recorder.output, f"{recorder.output}\n{stderr}"
+    assert len(stderr.strip().splitlines()) == 1, stderr
+    ended = ENDED.fullmatch(stderr.strip())
+    assert ended, stderr
+    held, left = int(ended["held"]), int(ended["left"])
+    assert ended["path"] == str(disk / "drive.mcap")
+    copy = out / "drive.mcap"
+    assert copy.stat().st_size == int(ended["size"]) <= TMPFS_BYTES
+    assert 30 <= held and held + left <= sent  # most of the disk holds clouds; what came after is counted
+    # Every message the recorder said was on disk (in a whole chunk) before the failure is in the file.
+    on_disk = [int(found) for found in re.findall(r" record: recorded=\d+ on_disk=(\d+) ", recorder.output)]
+    assert on_disk and held >= max(on_disk), recorder.output
+
+    with open(copy, "rb") as stream:
+        stamps = [PointCloud2_.deserialize(message.data).header_.stamp_.nanosec_
+                  for _, _, message in make_reader(stream).iter_messages()]
+    assert stamps == list(range(1, held + 1))
+    with AnyReader([copy]) as reader:
+        stamps = [reader.deserialize(raw, connection.msgtype).header.stamp.nanosec
+                  for connection, _, raw in reader.messages()]
+    assert stamps == list(range(1, held + 1))
+
+
+def test_a_file_cut_after_a_chunk_and_ended_there_reads_as_a_finished_one(tmp_path: Path) -> None:
+    """What the recorder does after a failed write, on a file mcap's own writer made: cut after a whole chunk, then
+    ended with the summary rebuilt from the chunks' record headers (the index equal to the writer's), or with the
+    footer alone (the ending that needs 50 bytes); both readers read exactly the messages before the cut."""
+    flows = {flow.topic: flow for flow in system_flows()}
+    finished = tmp_path / "finished.mcap"
+    writer = Writer(str(finished), chunk_size=4096, compression=CompressionType.LZ4)
+    writer.start(profile="ros2", library="test")
+    schemas, channels = [], []
+    for topic in ("AlertTopic", "rt/LidarTopic"):
+        schema = flows[topic].schema
+        schemas.append(Schema(id=writer.register_schema(schema.name, schema.encoding, schema.data), name=schema.name,
+                              encoding=schema.encoding, data=schema.data))
+        channels.append(Channel(id=writer.register_channel(topic, "cdr", schemas[-1].id), topic=topic,
+                                message_encoding="cdr", metadata={}, schema_id=schemas[-1].id))
+    sent = []
+    for number in range(1, 121):  # alerts, and a cloud every tenth: some chunks hold both channels
+        channel, data = ((channels[1], wire(cloud())) if number % 10 == 0 else
+                         (channels[0], wire(alert_for(number % 63 + 1))))
+        writer.add_message(channel.id, log_time=STAMP + number, data=data, publish_time=STAMP + number)
+        sent.append((channel.topic, data))
+    writer.finish()
+    with open(finished, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None and len(summary.chunk_indexes) >= 5
+    data = finished.read_bytes()
+    data_start = len(MCAP_MAGIC) + 9 + struct.unpack_from("<Q", data, len(MCAP_MAGIC) + 1)[0]  # after the header
+    keep = len(summary.chunk_indexes) - 2
+    last = summary.chunk_indexes[keep - 1]
+    cut = last.chunk_start_offset + last.chunk_length + last.message_index_length
+    for indexed in (True, False):
+        ended = tmp_path / f"ended-{indexed}.mcap"
+        shutil.copyfile(finished, ended)
+        fd = os.open(ended, os.O_RDWR)
+        try:
+            chunks = index_chunks(fd, data_start, cut)
+            assert [chunk.index for chunk in chunks] == summary.chunk_indexes[:keep]
+            os.ftruncate(fd, cut)
+            os.pwrite(fd, file_end(cut, schemas, channels, chunks if indexed else None), cut)
+        finally:
+            os.close(fd)
+        expected = sent[:sum(sum(chunk.messages.values()) for chunk in chunks)]
+        assert expected and len(expected) < len(sent)
+        with open(ended, "rb") as stream:
+            reader = make_reader(stream)
+            assert (reader.get_summary() is not None) == indexed
+            assert [(channel.topic, message.data) for _, channel, message in reader.iter_messages()] == expected
+        with AnyReader([ended]) as bag:
+            assert [(connection.topic, raw) for connection, _, raw in bag.messages()] == expected
+
+
+def test_a_disk_full_from_the_start_is_one_line(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
+    """/dev/full refuses every write with ENOSPC: not even the header is written."""
+    result = apps.run("record", "--domain", str(domain_id), "--output", "/dev/full", "--overwrite", "--duration", "5",
+                      timeout=TIMEOUT)
+    assert result.returncode == EXIT_WRITE_FAILED, result.stdout + result.stderr
+    assert "Traceback" not in result.stdout + result.stderr
+    assert re.fullmatch(r"(automotive )?record: /dev/full: No space left on device; recording stopped: not even the "
+                        r"file's header could be written \(the file is empty\); 0 received sample\(s\) are not in it\n",
+                        result.stderr), result.stderr
