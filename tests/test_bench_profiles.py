@@ -61,3 +61,12 @@ def test_fusion_cpu_by_thread() -> None:
     profile = codecs.FusionCpu(45.0, 500, {"python": 25.0, "recv": 18.5, "tev": 1.44, "gc": 0.06}, "python")
     assert profile.python_us() == 25.0 and profile.cyclone_us() == pytest.approx(20.0)
     assert codecs.describe_threads(profile.threads, "python") == "recv 18.5, tev 1.4"  # below 0.1 us left out
+
+
+def test_the_fusion_target_is_judged_over_enough_vision_samples_only() -> None:
+    # CPU time counts in clock ticks: over fewer samples, one tick is more than a tenth of the 50 us target
+    fewest = codecs.MIN_FUSION_SAMPLES
+    assert 1_000_000 / os.sysconf("SC_CLK_TCK") / fewest <= codecs.TARGET_FUSION_US / 10
+    assert codecs.fusion_verdict(45.0, fewest) == "met" and codecs.fusion_verdict(55.0, fewest) == "NOT MET"
+    assert codecs.fusion_verdict(45.0, fewest - 1) == (f"too short to judge: the target needs at least {fewest:,} "
+                                                       f"vision samples (this run: {fewest - 1:,})")

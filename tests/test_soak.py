@@ -1,4 +1,4 @@
-"""automotive-bench-soak's arithmetic and report on made-up samples (the benchmark itself runs the whole system for
+"""automotive bench soak's arithmetic and report on made-up samples (the benchmark itself runs the whole system for
 half an hour: not a test)."""
 
 from __future__ import annotations
@@ -69,19 +69,45 @@ def test_camera_and_hmi_figures_from_their_status_records(tmp_path: Path) -> Non
 
 
 def test_report_table_chart_and_last_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    args = argparse.Namespace(minutes=6.0, warmup=1.0, chart=tmp_path / "soak.png")
-    flat = [5000] * 37
-    climbing = [5000 + 10 * n for n in range(37)]  # +10 kB every 10 s: 3,600 kB/h
+    # 21 minutes with a 1-minute warm-up: the shortest run the goal judges (minutes 1-11 and 11-21)
+    args = argparse.Namespace(minutes=21.0, warmup=1.0, chart=tmp_path / "soak.png")
+    flat = [5000] * 127
+    climbing = [5000 + 10 * n for n in range(127)]  # +10 kB every 10 s: 3,600 kB/h
     everyone = [series("vision", flat), series("camera_sub", climbing), series(soak.LAUNCHER, climbing)]
     assert soak.report(everyone, soak.Seen(frames=100), args) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[-1] == "rss_slope_kB_per_h_max=3600 app=camera_sub"  # the launcher is outside the goal
-    assert any(line.startswith("goal NOT met: camera_sub: slope 3,600 kB/h > 200") for line in out)
+    # the launcher is outside the goal
+    assert out[-1] == "rss_slope_kB_per_h_max=3600 app=camera_sub verdict=not-met"
+    assert out[-2].startswith("goal NOT met: camera_sub: slope 3,600 kB/h > 200; camera_sub: held in the last 10 min")
     assert args.chart.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
     assert soak.report([series("vision", flat)], soak.Seen(frames=100), args) == 0
     out = capsys.readouterr().out.splitlines()
-    assert out[-2:] == ["goal met", "rss_slope_kB_per_h_max=0 app=vision"]
+    assert out[-2:] == ["goal met", "rss_slope_kB_per_h_max=0 app=vision verdict=met"]
+
+
+def test_a_run_too_short_gives_its_figures_and_no_verdict_but_what_no_length_undoes(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # 6 minutes: the slope is there, and far above the goal, but says nothing of hours
+    args = argparse.Namespace(minutes=6.0, warmup=1.0, chart=tmp_path / "soak.png")
+    climbing = [5000 + 10 * n for n in range(37)]
+    assert soak.report([series("camera_sub", climbing)], soak.Seen(), args) == 0  # no frame yet: too short too
+    out = capsys.readouterr().out.splitlines()
+    assert out[-2:] == ["too short to judge: the goal needs at least 21 minutes (this run: 6)",
+                        "rss_slope_kB_per_h_max=3600 app=camera_sub verdict=too-short"]
+    assert not any(line.startswith("goal") for line in out)
+    row = next(line for line in out if line.startswith("camera_sub"))
+    assert row.split()[4] == "3,600" and row.split()[5:7] == ["-", "-"]  # the slope; no window covered whole
+
+    # an application that ended, a frame lost: no longer run makes up for them (the slope is still not judged)
+    ended = series("vision", [5000] * 9)
+    ended.ended = "ended at 1.5 min (NoSuchProcess)"
+    assert soak.report([ended, series("camera_sub", climbing)], soak.Seen(frames=100, gaps=1), args) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[-3:] == ["too short to judge: the goal needs at least 21 minutes (this run: 6)",
+                        "goal NOT met: vision ended at 1.5 min (NoSuchProcess); camera: 1 gaps, 0 mismatches",
+                        "rss_slope_kB_per_h_max=3600 app=camera_sub verdict=not-met"]
+
 
     # 26 minutes, flat but for a burst returned within a minute in the last 10 minutes, and a step held there
     args = argparse.Namespace(minutes=26.0, warmup=5.0, chart=tmp_path / "soak.png")
@@ -93,6 +119,7 @@ def test_report_table_chart_and_last_line(tmp_path: Path, capsys: pytest.Capture
     goal = next(line for line in out if line.startswith("goal"))
     assert "hmi: held in the last 10 min 5,300 kB > 5,000 kB + 256 kB" in goal
     assert "camera_pub: held" not in goal  # (the burst does count in its fitted slope)
+    assert out[-1].endswith(" verdict=not-met")
 
 
 def test_the_peak_tolerance_is_one_receive_buffer() -> None:
@@ -110,7 +137,7 @@ def test_report_again_from_a_samples_file(tmp_path: Path, capsys: pytest.Capture
     assert soak.main(["--report", str(samples), "--work", str(work), "--chart", str(tmp_path / "again.png")]) == 0
     out = capsys.readouterr().out.splitlines()
     assert "camera: 600 frames, 0 gaps, 0 mismatches; HMI: 1 alerts shown" in "\n".join(out)
-    assert out[-2] == "goal met" and out[-1].startswith("rss_slope_kB_per_h_max=")
+    assert out[-2] == "goal met" and out[-1].startswith("rss_slope_kB_per_h_max=") and out[-1].endswith(" verdict=met")
     assert (tmp_path / "again.png").read_bytes()[:4] == b"\x89PNG"
     samples.write_text('{"t_s": 0, "app": "vision"}\n')
     with pytest.raises(SystemExit) as ended:

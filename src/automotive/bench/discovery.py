@@ -1,9 +1,9 @@
 """What discovery costs the running system, and how soon a tool that joins it late finds every application.
 
-    automotive-bench-discovery                          the whole system (automotive-launch), 10 late joins
-    automotive-bench-discovery --vision-sensors 50 --except camera_pub,camera_sub --joins 5
+    automotive bench discovery                          the whole system (automotive launch), 10 late joins
+    automotive bench discovery --vision-sensors 50 --except camera_pub,camera_sub --joins 5
 
-The system runs as `automotive-launch` starts it, with its shipped network defaults (loopback), inside a network
+The system runs as `automotive launch` starts it, with its shipped network defaults (loopback), inside a network
 namespace this program creates and deletes (its loopback is private, so the counts are the system's alone; needs
 root). Once the system is older than Cyclone's default prune delay for unanswered peers (--age, 35 s):
 
@@ -28,16 +28,15 @@ import re
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
-from automotive.bus.cli import ArgumentParser, add_domain_option
+from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
 from automotive.bus.latency import percentile
 from automotive.tools import launch, netlab
-from automotive.tools.children import Child, program_command, thread_cpu_by_name
+from automotive.tools.children import Child, program_command, thread_cpu_by_name, work_folder
 
-PROG = "automotive-bench-discovery"
+PROG = "automotive bench discovery"
 DISCOVERY_THREADS = ("tev", "dq.builtins")
 RECEPTION_THREADS = ("recv", "recvUC", "recvMC")
 JOINER_INDEXES = range(5)  # RTI Connext's default probe of an initial peer without an index range: 0-4
@@ -123,12 +122,18 @@ def bench(args: argparse.Namespace) -> int:
         print(f"{PROG}: needs root (it runs the system in a network namespace of its own)",
               file=sys.stderr)
         return 2
+    # The launcher's logs: --log-dir, kept, or a temporary folder removed at the end (also on an error, Ctrl-C or
+    # SIGTERM, which ends the run as Ctrl-C does: the system stopped, the namespace gone).
+    with work_folder("bench-discovery-", args.log_dir) as log_dir:
+        return measure(args, log_dir)
+
+
+def measure(args: argparse.Namespace, log_dir: Path) -> int:
     domain = args.domain
     try:
         namespace = Namespace(domain)
     except netlab.NetlabError as error:
         raise SystemExit(f"{PROG}: {error}") from None
-    log_dir = Path(tempfile.mkdtemp(prefix="bench-discovery-"))
     env = {key: value for key, value in os.environ.items() if key != "CYCLONEDDS_URI"}
     env.update(DISPLAY="", WAYLAND_DISPLAY="")
     launch_args = ["--mode", "background", "--domain", str(domain), "--log-dir", str(log_dir),
@@ -186,6 +191,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--window", type=float, default=30.0, help="cost measurement window, seconds (30)")
     parser.add_argument("--joins", type=int, default=10, help="late joins to time (10)")
     parser.add_argument("--timeout", type=float, default=30.0, help="give up a late join after this long (30 s)")
+    add_log_dir_option(parser, help="keep the applications' logs there (default: a temporary folder, removed at the "
+                                    "end)")
     args = parser.parse_args(argv)
     if args.joins < 1 or args.window <= 0 or args.age < 0:
         parser.error("--joins must be >= 1, --window > 0, --age >= 0")

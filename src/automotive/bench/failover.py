@@ -1,9 +1,9 @@
 """Failover of collision_avoidance in the running redundant system, measured at the vehicle platform and the HMI.
 
-    automotive-bench-failover                                  20 failovers on domain 87
-    automotive-bench-failover --failovers 5 --domain 88 --log-dir /tmp/failover
+    automotive bench failover                                  20 failovers on domain 87
+    automotive bench failover --failovers 5 --domain 88 --log-dir /tmp/failover
 
-The redundant system (automotive-launch --redundant) runs on loopback: vision every 100 ms, two sensor_fusion instances
+The redundant system (automotive launch --redundant) runs on loopback: vision every 100 ms, two sensor_fusion instances
 in event mode (strengths 20 and 10), two collision_avoidance instances (20 and 10), the vehicle platform and a console
 HMI. The vision scene has a tall truck ahead 3.6 s of every 4 s, so alerts are written with every object list most of
 the time and the HMI has a change to show every 2 s or so.
@@ -19,7 +19,8 @@ At the end: min / median / p99 / max of the gaps and of the time from the kill t
 and the checks of every failover: the platform's executed command numbers never went back, the HMI never showed an
 alert state twice in a row, and every alert change it showed was made by a collision_avoidance instance shortly before
 (no stale alert). The last line is failover_p99_ms=<p99 of the platform's gaps>; the goal is p99 <= 2 x the liveliness
-lease of the Redundant profiles (250 ms).
+lease of the Redundant profiles (250 ms), judged over at least 20 failovers (the default; the p99 of fewer is the
+slowest of a handful): fewer print their figures and "too short to judge".
 """
 
 from __future__ import annotations
@@ -31,22 +32,24 @@ import shutil
 import signal
 import statistics
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from automotive import config
-from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import Record, StatsChild, stop_all
+from automotive.tools.children import Record, StatsChild, stop_all, work_folder
 
-PROG = "automotive-bench-failover"
+PROG = "automotive bench failover"
 PRIMARY, STANDBY = 20, 10
 LEASE_MS = 250
 STALE_WINDOW_S = 2.0  # an alert change shown at the HMI must have been made by an instance this recently
+# The goal is a p99: of fewer failovers it is the slowest of a handful. Even of 20 it is the slowest one (a p99 parts
+# from the maximum from 101 samples on), so that a goal met is met with a margin.
+MIN_FAILOVERS_TO_JUDGE = 20
 
 def owner_change(topic: str, instance: str | None = None) -> Callable[[Record], bool]:
     """An owner record of ``topic`` that follows a previous owner (to ``instance``, if given)."""
@@ -63,15 +66,19 @@ class System:
         self.env = dict(os.environ)
         self.env["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()  # loopback only
         self.processes: list[StatsChild] = []
-        self.hmi = self.spawn("hmi", "hmi", ["--ui", "console"])
-        self.platform = self.spawn("vehicle_platform", "vehicle_platform", [])
-        self.standby = self.instance("collision_avoidance-2")
-        self.primary = self.instance("collision_avoidance")
-        for name in ("sensor_fusion", "sensor_fusion-2"):
-            strength = STANDBY if name.endswith("-2") else PRIMARY
-            self.spawn(name, "sensor_fusion", ["-D", f"config.instanceName={name}", "-D", "config.mode=event",
-                                               "-D", f"config.ownershipStrength={strength}"])
-        self.spawn("vision", "vision", ["-D", "config.pubInterval=100", "-D", f"dataFile={data}"])
+        try:
+            self.hmi = self.spawn("hmi", "hmi", ["--ui", "console"])
+            self.platform = self.spawn("vehicle_platform", "vehicle_platform", [])
+            self.standby = self.instance("collision_avoidance-2")
+            self.primary = self.instance("collision_avoidance")
+            for name in ("sensor_fusion", "sensor_fusion-2"):
+                strength = STANDBY if name.endswith("-2") else PRIMARY
+                self.spawn(name, "sensor_fusion", ["-D", f"config.instanceName={name}", "-D", "config.mode=event",
+                                                   "-D", f"config.ownershipStrength={strength}"])
+            self.spawn("vision", "vision", ["-D", "config.pubInterval=100", "-D", f"dataFile={data}"])
+        except BaseException:  # those started so far stop too (an error, Ctrl-C, SIGTERM)
+            self.stop(None)
+            raise
 
     def spawn(self, name: str, module: str, args: list[str]) -> StatsChild:
         program = StatsChild.start(name, module, [*self.common, *args],
@@ -183,8 +190,10 @@ def check(system: System) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    with tempfile.TemporaryDirectory(prefix="bench-failover-") as folder:
-        system = System(args.domain, write_scene(Path(folder) / "scene.csv"), args.timeout, Path(folder))
+    # The scene and the status records; removed at the end, also on an error, Ctrl-C or SIGTERM (which ends the run
+    # as Ctrl-C does, the system stopped first). --log-dir gets copies.
+    with work_folder("bench-failover-") as folder:
+        system = System(args.domain, write_scene(folder / "scene.csv"), args.timeout, folder)
         runs: list[Failover] = []
         try:
             system.platform.wait_record("owner", args.timeout,
@@ -200,9 +209,9 @@ def run(args: argparse.Namespace) -> int:
                       f"over {round(measured.takeover_gap)} ms after the standby's last command", flush=True)
         except (TimeoutError, RuntimeError) as error:
             print(f"{PROG}: {error}", file=sys.stderr)
-            system.stop(args.log_dir)
             return 1
-        system.stop(args.log_dir)
+        finally:
+            system.stop(args.log_dir)
         problems = check(system)
         stale_ignored = len(system.platform.records("stale_command"))
     print(f"\ncollision_avoidance failover, redundant system on loopback, liveliness lease {LEASE_MS} ms, "
@@ -217,7 +226,11 @@ def run(args: argparse.Namespace) -> int:
                           "command numbers never went back, no alert state shown twice, no stale alert"))
     p99_measured = percentile(platform_gaps, 0.99)
     p99 = float("nan") if p99_measured is None else p99_measured  # NaN: no gap measured, the goal is not met
-    print(f"  goal p99 <= 2 x lease = {2 * LEASE_MS} ms: {'met' if p99 <= 2 * LEASE_MS else 'NOT met'}")
+    if len(platform_gaps) < MIN_FAILOVERS_TO_JUDGE:
+        print(f"  too short to judge: the goal needs at least {MIN_FAILOVERS_TO_JUDGE} failovers "
+              f"(this run: {len(platform_gaps)})")
+    else:
+        print(f"  goal p99 <= 2 x lease = {2 * LEASE_MS} ms: {'met' if p99 <= 2 * LEASE_MS else 'NOT met'}")
     print(f"failover_p99_ms={p99:.0f}")
     return 1 if problems else 0
 
@@ -229,6 +242,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for each step (default 60)")
     add_log_dir_option(parser, help="write every process's output (.log) and status records (.jsonl) there")
     args = parser.parse_args(argv)
+    if args.log_dir is not None and (problem := output_folder_problem(args.log_dir, create=True)):
+        parser.error(f"--log-dir {args.log_dir}: {problem}")  # before the run, not after it
     if args.failovers < 1:
         print(f"{PROG}: --failovers {args.failovers}: expected 1 or more", file=sys.stderr)
         return 2

@@ -25,7 +25,7 @@ from automotive.types.CameraImage import CameraImageData_4MiB
 from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_, PointField_
 from automotive.types.std_msgs.msg.dds_ import Header_
 
-PROG = "automotive-bench-fastpath"
+PROG = "automotive bench fastpath"
 MIB4 = 4 << 20
 
 

@@ -39,7 +39,7 @@ from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.types.Vision import VisionObject, VisionSensor
 
-PROG = "automotive-bench-filter"
+PROG = "automotive bench filter"
 HEADLINE = "color = 'RED' AND x BETWEEN 10 AND 200"
 SHAPE = ShapeType(color="RED", x=120, y=135, shapesize=30)
 VISION = VisionSensor(id=3, timestamp=POSIXTimestamp(s=1_763_800_000, ns=5), objects=[

@@ -24,6 +24,7 @@ medians of the rounds) and `shm_p99_ms_30fps=<p99 latency of the shared-memory p
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import shutil
@@ -37,11 +38,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from automotive.bus import stats
-from automotive.bus.cli import ArgumentParser, add_domain_option
+from automotive.bus.cli import ArgumentParser, add_domain_option, output_file
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import Child, RunFailed, StatsChild, program_command
+from automotive.tools.children import Child, RunFailed, StatsChild, program_command, work_folder
 
-PROG = "automotive-bench-large-data"
+PROG = "automotive bench large-data"
 SIZES = {"64KiB": 64 * 1024, "1MiB": 1024 * 1024, "4MiB": 4 * 1024 * 1024}
 START_TIMEOUT = 90.0  # starting Python and Cyclone on a busy 2-core machine can take long
 SHM_PREFIX = f"benchlarge{os.getpid()}_"  # our iceoryx2 files only; removed at the end
@@ -107,7 +108,9 @@ def run_ours(size_name: str, duration: float, domain: int, env: dict[str, str], 
         common += ["-D", f"qos.File={qos_file.resolve()}"]
     if shared_memory:
         common += ["-D", "config.transport=shm", "-D", f"config.shmPrefix={SHM_PREFIX}"]
-    figures = Path(tempfile.mkstemp(prefix="camera_sub-", suffix=".jsonl", dir=workdir)[1])
+    handle, name = tempfile.mkstemp(prefix="camera_sub-", suffix=".jsonl", dir=workdir)
+    os.close(handle)  # camera_sub writes it: only its name is needed here
+    figures = Path(name)
     sub = Child("camera_sub", program_command("camera_sub", *common, "--exit-with-publisher", "--stats",
                                               str(figures), python=launcher or ()), env=env)
     pub: Child | None = None
@@ -123,6 +126,8 @@ def run_ours(size_name: str, duration: float, domain: int, env: dict[str, str], 
         sub.stop(signal.SIGINT, timeout=30)
     except RunFailed as error:
         return _failed(result, error, pub, sub)
+    finally:
+        _stop_left(pub, sub)  # on the way out of the run (Ctrl-C, SIGTERM), before their folder is removed
     # The windows' records carry the wall clock: measure_window's monotonic window, shifted onto it.
     shift = time.time() - time.monotonic()
     points, total = [], 0
@@ -149,6 +154,13 @@ def _failed(result: Result, error: RunFailed, *procs: Child | None) -> Result:
         if proc is not None:
             proc.stop(signal.SIGTERM)
     return result
+
+
+def _stop_left(*procs: Child | None) -> None:
+    """Stop what still runs (nothing, when the run went its way)."""
+    for proc in procs:
+        if proc is not None and proc.poll() is None:
+            proc.stop(signal.SIGTERM)
 
 
 def _wait(proc: Child, timeout: float) -> bool:
@@ -180,6 +192,8 @@ def run_ddsperf(size_name: str, duration: float, domain: int, env: dict[str, str
         sub.stop(signal.SIGINT, timeout=30)
     except RunFailed as error:
         return _failed(result, error, pub, sub)
+    finally:
+        _stop_left(pub, sub)
     points, lost = [], 0
     for line in list(sub.records):
         arrived = line.time
@@ -285,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=5.0, help="measured seconds per run (default 5)")
     parser.add_argument("--rounds", type=int, default=1, help="runs of each tool per size; the median is shown")
     add_domain_option(parser, 75, "DDS domain id of the runs")
-    parser.add_argument("--chart", type=Path, default=Path("bench-large-data.png"), help="PNG chart to write")
+    parser.add_argument("--chart", type=output_file, default="bench-large-data.png", help="PNG chart to write")
     parser.add_argument("--socket-buffer", default="4MiB",
                         help="largest socket buffers to ask for (the kernel caps them at net.core.rmem_max)")
     parser.add_argument("--fragment-size", type=int, default=62000,
@@ -308,11 +322,23 @@ def main(argv: list[str] | None = None) -> int:
     env = dict(os.environ, CYCLONEDDS_URI=cyclone_uri(args.cyclone_defaults, args.socket_buffer, args.fragment_size))
     c_env = dict(env, CYCLONEDDS_URI=cyclone_uri(args.cyclone_defaults, args.socket_buffer, args.fragment_size,
                                                  c_tool=True))
-    workdir = Path(tempfile.mkdtemp(prefix="bench-large-data-"))
     config = ("Cyclone defaults" if args.cyclone_defaults
               else f"{args.fragment_size}-byte fragments, socket buffers <= {args.socket_buffer}")
     print(f"loopback, reliable keep-all, {args.duration:g} s per run, {args.rounds} round(s), {config}", flush=True)
+    # camera_sub's status records in a temporary folder, and iceoryx2's files of this run: removed at the end, also
+    # on an error, Ctrl-C or SIGTERM (which ends the run as Ctrl-C does, the pairs stopped first).
+    try:
+        with work_folder("bench-large-data-") as workdir:
+            results, camera_rate = measure(args, sizes, ddsperf, env, c_env, workdir)
+    finally:
+        remove_shared_memory_files()
+    report(args, results, camera_rate, sizes, config)
+    return 0
 
+
+def measure(args: argparse.Namespace, sizes: list[str], ddsperf: str, env: dict[str, str], c_env: dict[str, str],
+            workdir: Path) -> tuple[list[Result], Result]:
+    """Every round of every size and tool, then the shared-memory pair at 30 frames/s."""
     results: list[Result] = []
     for round_number in range(1, args.rounds + 1):
         for name in sizes:
@@ -331,8 +357,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  shared memory, 4MiB frames at 30 frames/s for {args.latency_seconds:g} s, {scheduling}", flush=True)
     camera_rate = run_ours("4MiB", args.latency_seconds, args.domain, env, args.qos_file, workdir, True, 1000 / 30,
                            ["chrt", "--fifo", "10"] if args.realtime else None)
-    remove_shared_memory_files()
-    shutil.rmtree(workdir, ignore_errors=True)
+    return results, camera_rate
+
+
+def report(args: argparse.Namespace, results: list[Result], camera_rate: Result, sizes: list[str],
+           config: str) -> None:
+    """The table, the chart and the last lines."""
+    scheduling = "SCHED_FIFO 10" if args.realtime else "default scheduling"
     rows, ratios = summarise(results, sizes)
     print()
     print("\n".join(rows))
@@ -345,7 +376,6 @@ def main(argv: list[str] | None = None) -> int:
     print(f"ratio_shm_4MiB={ratios.get(('ours-shm', '4MiB'), float('nan')):.3f}")
     p99 = camera_rate.p99_ms if camera_rate.p99_ms is not None else float("nan")
     print(f"shm_p99_ms_30fps={p99:.3f}")
-    return 0
 
 
 def remove_shared_memory_files() -> None:

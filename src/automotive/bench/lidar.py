@@ -39,7 +39,7 @@ from automotive.bus.qos import QosProfiles
 from automotive.sim.scene import LidarScene, ScanGrid
 from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_
 
-PROG = "automotive-bench-lidar"
+PROG = "automotive bench lidar"
 SIZES = (("1x", 1, 1), ("4x", 2, 2), ("16x", 4, 4))  # (label, azimuth factor, polar factor)
 LIBRARY = "AutomotiveLibrary"
 RATE_HZ = 20

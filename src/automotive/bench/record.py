@@ -1,6 +1,6 @@
 """Record the whole running system for a minute and say what the recorder kept, lost and cost.
 
-    automotive-bench-record [--seconds 60] [--domain 86] [--compression none|lz4|zstd] [--keep FILE]
+    automotive bench record [--seconds 60] [--domain 86] [--compression none|lz4|zstd] [--keep FILE]
 
 Starts automotive.tools.record, then every application of the system on a private domain, loopback only: vision, lidar
 (a log line per frame), sensor_fusion, collision_avoidance, vehicle_platform, hmi (console), camera_pub at 30 frames/s
@@ -9,8 +9,8 @@ of 4 MiB (it waits for its two readers: camera_sub and the recorder) with camera
 
 Per topic: samples published (the producer's own numbered status records, --stats, counted from the moment the
 recorder matched that producer; "-" where the producer does not number what it writes), samples recorded, MB and MB/s;
-then the recorder's CPU (1.00 = one core busy), the file size, the compression ratio (message bytes / file bytes) and
-MB/s written.
+then the recorder's CPU (1.00 = one core busy), the file size, the compression ratio (message bytes / file bytes;
+with --compression lz4 or zstd) and MB/s written.
 Lost samples on reliable flows (LiDAR, camera, alerts), each counted once: the camera frames missing from the file
 (their seqnums must run without a gap), the LiDAR clouds published after the match but not recorded (less one: the
 first frame logged after the match may have been written before it), and the alerts
@@ -22,16 +22,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
-from automotive.bus.cli import ArgumentParser, add_domain_option
-from automotive.tools.children import StatsChild
+from automotive.bus.cli import ArgumentParser, add_domain_option, output_file
+from automotive.tools.children import StatsChild, work_folder
 
-PROG = "automotive-bench-record"
+PROG = "automotive bench record"
 START_TIMEOUT = 120.0  # ten Python processes starting on a busy 2-core machine
 
 # The producers, and the status record each writes per sample written (kind) with the topic written.
@@ -76,10 +74,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=60.0, help="how long the system is recorded (default 60)")
     add_domain_option(parser, 86, "DDS domain id")
     parser.add_argument("--compression", choices=["lz4", "zstd", "none"], default="none")
-    parser.add_argument("--keep", type=Path, default=None, help="keep the recording in this file")
+    parser.add_argument("--keep", type=output_file, default=None, help="keep the recording in this file")
     args = parser.parse_args(argv)
     os.environ.pop("CYCLONEDDS_URI", None)  # the applications' own loopback configuration (camera: large data)
-    workdir = Path(tempfile.mkdtemp(prefix="bench-record-"))
+    # The status records, and the recording unless --keep: a minute of the system is about 8 GB. Removed at the end,
+    # also on an error, Ctrl-C or SIGTERM (which ends the run as Ctrl-C does, the programs stopped first).
+    with work_folder("bench-record-") as workdir:
+        return run(args, workdir)
+
+
+def run(args: argparse.Namespace, workdir: Path) -> int:
     output = args.keep or workdir / "system.mcap"
 
     recorder = start_program("record", ["--output", str(output), "--overwrite",
@@ -148,11 +152,10 @@ def main(argv: list[str] | None = None) -> int:
             lost += queue_lost + dds_lost
     print(f"camera frames recorded {camera_recorded}, missing seqnums in the file {camera_gaps}")
     mbps = size / 1e6 / elapsed
-    print(f"recorder CPU {cpu:.2f}, file {size / 1e6:.1f} MB in {elapsed:.1f} s, compression {args.compression} "
-          f"ratio {message_bytes / size if size else 0:.2f}")
-    if args.keep is None:
-        output.unlink(missing_ok=True)  # a minute of the system is about 8 GB
-    shutil.rmtree(workdir, ignore_errors=True)
+    # A ratio only where there is compression: an uncompressed file's "ratio" would be MCAP's own overhead.
+    compression = (f"compression {args.compression}, ratio {message_bytes / size:.2f}"
+                   if args.compression != "none" and size else "uncompressed")
+    print(f"recorder CPU {cpu:.2f}, file {size / 1e6:.1f} MB in {elapsed:.1f} s, {compression}")
     print(f"record_lost={lost} record_MBps={mbps:.1f}")
     return 0
 

@@ -1,10 +1,10 @@
 """Sensor fusion against N vision sensors on one host (loopback): discovery time, fusion CPU, objects per fused list.
 
-    automotive-bench-scale                      N = 1, 10, 50
-    automotive-bench-scale --sizes 1,20 --window 10 --domain 85
+    automotive bench scale                      N = 1, 10, 50
+    automotive bench scale --sizes 1,20 --window 10 --domain 85
 
 For each N: sensor_fusion starts and creates its reader; then N vision processes (python -m automotive.apps.vision,
-config.sensorId 1..N, as `automotive-launch --vision-sensors N` starts them)
+config.sensorId 1..N, as `automotive launch --vision-sensors N` starts them)
 start at once (or --stagger S seconds apart).
 Measured, from each process's status records (--stats, JSON lines with wall-clock times):
   start       seconds from starting the N processes until every one has created its writer (its "ready" record)
@@ -30,17 +30,16 @@ import os
 import shutil
 import statistics
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
 
-from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import StatsChild, stop_all
+from automotive.tools.children import StatsChild, stop_all, work_folder
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE
 
-PROG = "automotive-bench-scale"
+PROG = "automotive bench scale"
 
 
 def start_process(name: str, module: str, args: list[str], env: dict[str, str], workdir: Path) -> StatsChild:
@@ -79,9 +78,16 @@ def stop(processes: list[StatsChild], log_dir: Path | None) -> None:
 
 def run_one(n: int, domain: int, window: float, env: dict[str, str], timeout: float,
             log_dir: Path | None, stagger: float) -> dict[str, float]:
+    # The status records; removed at the end, also on an error, Ctrl-C or SIGTERM (which ends the run as Ctrl-C does,
+    # the processes stopped first). --log-dir gets copies.
+    with work_folder(f"bench-scale-n{n}-") as workdir:
+        return measure(n, domain, window, env, timeout, log_dir, stagger, workdir)
+
+
+def measure(n: int, domain: int, window: float, env: dict[str, str], timeout: float, log_dir: Path | None,
+            stagger: float, workdir: Path) -> dict[str, float]:
     processes: list[StatsChild] = []
     drops_before = udp_receive_buffer_drops()
-    workdir = Path(tempfile.mkdtemp(prefix=f"bench-scale-n{n}-"))
     try:
         fusion = start_process("sensor_fusion", "sensor_fusion", ["--domain", str(domain)], env, workdir)
         processes.append(fusion)
@@ -149,7 +155,6 @@ def run_one(n: int, domain: int, window: float, env: dict[str, str], timeout: fl
         }
     finally:
         stop(processes, log_dir / f"n{n}" if log_dir else None)
-        shutil.rmtree(workdir, ignore_errors=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -163,6 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     add_log_dir_option(parser, help="write every process's output there (DIR/nN/NAME.log with monotonic time stamps, "
                                     "NAME.jsonl: its status records)")
     args = parser.parse_args(argv)
+    if args.log_dir is not None and (problem := output_folder_problem(args.log_dir, create=True)):
+        parser.error(f"--log-dir {args.log_dir}: {problem}")  # before the run, not after it
     try:
         sizes = [int(size) for size in args.sizes.split(",")]
     except ValueError:

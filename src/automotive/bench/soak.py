@@ -1,17 +1,20 @@
 """Soak: the whole system for a long time, each application's resident memory and CPU sampled, the trend fitted.
 
-    automotive-bench-soak                              30 minutes
-    automotive-bench-soak --minutes 120 --chart soak-2h.png
-    automotive-bench-soak --minutes 10 --warmup 2      a short look
-    automotive-bench-soak --memtrace DIR               also the applications' memory probe (automotive.bus.memtrace)
-    automotive-bench-soak --report FILE --work DIR     the table, chart and goal again, from a run's --samples FILE
+    automotive bench soak                              30 minutes
+    automotive bench soak --minutes 120 --chart soak-2h.png
+    automotive bench soak --minutes 10 --warmup 2      a short look (figures only: too short for the goal)
+    automotive bench soak --memtrace DIR               also the applications' memory probe (automotive.bus.memtrace)
+    automotive bench soak --samples FILE --work DIR    keep what a report needs: every sample and the work folder
+    automotive bench soak --report FILE --work DIR     the table, chart and goal again, from a run's --samples FILE
                                                        and its work folder (the camera's and the HMI's records)
 
-Starts the system as `automotive-launch` does (every application, camera included, shipped properties; background
+Starts the system as `automotive launch` does (every application, camera included, shipped properties; background
 mode, hmi on the console) in a network namespace that this run creates and deletes, so its traffic is private
 (needs root). Every --interval seconds (10) psutil samples each application's RSS and CPU time; a progress line
 comes every minute. The camera subscriber and the HMI write their status records (--stats, through the launcher's
---stats-dir): frames, gaps and mismatches; the alerts shown to the driver and the alert source lost.
+--stats-dir): frames, gaps and mismatches; the alerts shown to the driver and the alert source lost. They and the
+launcher's logs go to a temporary work folder, removed at the end (also on an error, Ctrl-C or SIGTERM), or to
+--work DIR, a new or empty folder that is kept.
 
 At the end, per application: RSS (kB) at the end of the warm-up (--warmup, 5 min), at the end and its peak; the
 slope of a least-squares line through the samples after the warm-up, in kB per hour; the highest RSS held for 90 s
@@ -23,7 +26,11 @@ PNG (--chart) shows the curves and the fitted lines.
 
 Goal (issue 20): every application's slope at most 200 kB/h, its highest RSS held in the last 10 minutes no higher
 than in the 10 minutes after the warm-up (by more than a receive buffer, 256 KiB, whose fill moves RSS up and down),
-0 camera gaps and mismatches. The last line is rss_slope_kB_per_h_max=<the largest slope> app=<its application>.
+0 camera gaps and mismatches. It needs a run of the warm-up and 20 minutes (both windows whole, one after the other):
+a shorter one prints its figures and "too short to judge" instead of a verdict (a verdict still when an application
+ended or the camera lost or mangled a frame, which no length undoes). The last line is
+rss_slope_kB_per_h_max=<the largest slope> app=<its application> verdict=<met, not-met or too-short>; the exit code
+is 0 once the report is printed, whatever the verdict.
 """
 
 from __future__ import annotations
@@ -32,24 +39,21 @@ import argparse
 import bisect
 import json
 import os
-import signal
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
 from typing import IO
 
 import numpy as np
 import psutil
 
 from automotive.bus import stats as status_records
-from automotive.bus.cli import ArgumentParser, add_domain_option
+from automotive.bus.cli import ArgumentParser, add_domain_option, output_file, output_folder
 from automotive.tools import launch, netlab
-from automotive.tools.children import Child, program_command
+from automotive.tools.children import Child, program_command, work_folder
 
-PROG = "automotive-bench-soak"
+PROG = "automotive bench soak"
 LAUNCHER = "launch"
 STOP_TIMEOUT_S = 10.0
 SLOPE_GOAL_KB_PER_H = 200.0
@@ -229,15 +233,23 @@ def sample_until(series: list[Series], args: argparse.Namespace, camera: Path, h
         time.sleep(max(0.0, min(next_sample, next_progress, duration_s) - (time.monotonic() - started)))
 
 
+def minutes_to_judge(warmup_min: float) -> float:
+    """The shortest run the goal judges: the warm-up, then the 10 minutes after it and the last 10 minutes, whole and
+    one after the other (a slope fitted over less, or levels compared over parts of windows, say nothing of hours)."""
+    return warmup_min + 2 * COMPARE_WINDOW_S / 60
+
+
 def report(series: list[Series], seen: Seen, args: argparse.Namespace) -> int:
-    """The table, the chart, the goal and the last line."""
+    """The table, the chart, the goal (or "too short to judge") and the last line."""
     warmup_s, end_s = args.warmup * 60, args.minutes * 60
     early = (warmup_s, warmup_s + COMPARE_WINDOW_S)
-    late = (max(end_s - COMPARE_WINDOW_S, early[1]), end_s)
-    comparable = late[0] >= early[1] and late[1] > late[0]
+    late = (end_s - COMPARE_WINDOW_S, end_s)
+    long_enough = args.minutes >= minutes_to_judge(args.warmup)
     print(f"\n{'application':<20} {f'at {args.warmup:g} min':>9} {'end kB':>9} {'peak kB':>9} {'slope kB/h':>11} "
           f"{'held ' + f'{early[0] / 60:g}-{early[1] / 60:g} min':>15} {'held last 10':>13} {'CPU %':>6}")
-    worst_name, worst_slope, failures = "-", float("nan"), []
+    # Failures that any run shows (an application ended, a frame lost or mangled), and those only a run long enough
+    # to judge shows (a trend, a level held, frames that take their time to start).
+    worst_name, worst_slope, failures, judged = "-", float("nan"), [], []
     for one in series:
         if not one.rss_kB:
             print(f"{one.name:<20} no samples ({one.ended})")
@@ -245,8 +257,8 @@ def report(series: list[Series], seen: Seen, args: argparse.Namespace) -> int:
             continue
         slope = one.slope_kB_per_h(warmup_s)
         start = next((rss for t, rss in zip(one.times_s, one.rss_kB) if t >= warmup_s), one.rss_kB[0])
-        early_peak = one.held_peak(*early)
-        late_peak = one.held_peak(*late) if comparable else None
+        early_peak = one.held_peak(*early) if end_s >= early[1] else None  # a window the run covered, or none
+        late_peak = one.held_peak(*late) if long_enough else None
         print(f"{one.name:<20} {start:>9,} {one.rss_kB[-1]:>9,} {max(one.rss_kB):>9,} "
               f"{'-' if slope is None else f'{round(slope):,}':>11} "
               f"{'-' if early_peak is None else f'{early_peak:,}':>15} "
@@ -260,27 +272,34 @@ def report(series: list[Series], seen: Seen, args: argparse.Namespace) -> int:
             if not slope <= worst_slope:  # the first, or a larger one (worst_slope starts as NaN)
                 worst_name, worst_slope = one.name, slope
             if slope > SLOPE_GOAL_KB_PER_H:
-                failures.append(f"{one.name}: slope {slope:,.0f} kB/h > {SLOPE_GOAL_KB_PER_H:g}")
-        if comparable and (early_peak is None or late_peak is None):
-            failures.append(f"{one.name}: no level held for {HELD_S:g} s in a window to compare")
+                judged.append(f"{one.name}: slope {slope:,.0f} kB/h > {SLOPE_GOAL_KB_PER_H:g}")
+        if long_enough and (early_peak is None or late_peak is None):
+            judged.append(f"{one.name}: no level held for {HELD_S:g} s in a window to compare")
         elif early_peak is not None and late_peak is not None and late_peak > early_peak + PEAK_TOLERANCE_KB:
-            failures.append(f"{one.name}: held in the last 10 min {late_peak:,} kB > {early_peak:,} kB "
-                            f"+ {PEAK_TOLERANCE_KB} kB")
+            judged.append(f"{one.name}: held in the last 10 min {late_peak:,} kB > {early_peak:,} kB "
+                          f"+ {PEAK_TOLERANCE_KB} kB")
     print(f"\ncamera: {seen.frames} frames, {seen.gaps} gaps, {seen.mismatches} mismatches; HMI: {seen.alerts} alerts "
           f"shown, {seen.clears} all-clears, alert source lost {seen.source_lost} time(s)")
     if seen.gaps or seen.mismatches:
         failures.append(f"camera: {seen.gaps} gaps, {seen.mismatches} mismatches")
     if not seen.frames:
-        failures.append("camera: no frame received")
-    if not comparable:
-        print(f"(the run is too short to compare the last 10 minutes with minutes {early[0] / 60:g}-"
-              f"{early[1] / 60:g}: --minutes of at least {(warmup_s + 2 * COMPARE_WINDOW_S) / 60:g} for that)")
+        judged.append("camera: no frame received")
     write_chart(args.chart, series, warmup_s, f"{PROG}: the whole system for {args.minutes:g} min, "
                                               f"{args.warmup:g}-min warm-up")
     print(f"chart: {args.chart}")
-    print("goal met" if not failures else "goal NOT met: " + "; ".join(failures))
+    if not long_enough:
+        print(f"too short to judge: the goal needs at least {minutes_to_judge(args.warmup):g} minutes "
+              f"(this run: {args.minutes:g})")
+    else:
+        failures += judged
+    verdict = "not-met" if failures else "met" if long_enough else "too-short"
+    if failures:
+        print("goal NOT met: " + "; ".join(failures))
+    elif long_enough:
+        print("goal met")
     # round(), not :.0f, so that a flat line's -0.0 prints as 0; NaN when no application had enough samples
-    print(f"rss_slope_kB_per_h_max={'nan' if worst_slope != worst_slope else round(worst_slope)} app={worst_name}")
+    print(f"rss_slope_kB_per_h_max={'nan' if worst_slope != worst_slope else round(worst_slope)} app={worst_name} "
+          f"verdict={verdict}")
     return 0
 
 
@@ -288,7 +307,13 @@ def bench(args: argparse.Namespace) -> int:
     if os.geteuid() != 0:
         print(f"{PROG}: needs root (it runs the system in a network namespace of its own)", file=sys.stderr)
         return 2
-    work = Path(tempfile.mkdtemp(prefix="bench-soak-"))
+    # SIGTERM (a background run stopped with kill) ends the run as Ctrl-C does: the system stopped, the namespace and
+    # the temporary work folder gone.
+    with work_folder("bench-soak-", args.work) as work:
+        return run(args, work)
+
+
+def run(args: argparse.Namespace, work: Path) -> int:
     log_dir = work / "logs"
     camera, hmi = work / "camera_sub.jsonl", work / "hmi.jsonl"
     env = {key: value for key, value in os.environ.items() if key != "CYCLONEDDS_URI"}
@@ -301,10 +326,6 @@ def bench(args: argparse.Namespace) -> int:
                    "--stop-timeout", f"{STOP_TIMEOUT_S:g}", "--stats-dir", f"camera_sub:{work}",
                    "--stats-dir", f"hmi:{work}"]
 
-    def on_sigterm(signum: int, frame: FrameType | None) -> None:
-        sys.exit(128 + signum)  # a background run stopped with kill ends as Ctrl-C does: system stopped, namespace gone
-
-    signal.signal(signal.SIGTERM, on_sigterm)
     try:
         namespace = netlab.Namespace(f"bench-soak-{os.getpid()}")  # its loopback is private
     except netlab.NetlabError as error:
@@ -323,8 +344,9 @@ def bench(args: argparse.Namespace) -> int:
             info = json.loads((log_dir / "launch.pid").read_text())
             series = [Series(name, psutil.Process(pid)) for name, pid in info["apps"].items()]
             series.append(Series(LAUNCHER, psutil.Process(int(info["launcher"]))))
+            kept = f"; work folder {work}" if args.work is not None else ""
             print(f"sampling {len(series) - 1} applications and the launcher every {args.interval:g} s for "
-                  f"{args.minutes:g} min (warm-up {args.warmup:g} min); work folder {work}", flush=True)
+                  f"{args.minutes:g} min (warm-up {args.warmup:g} min){kept}", flush=True)
             sample_until(series, args, camera, hmi, samples_out)
         finally:
             launcher.stop(timeout=STOP_TIMEOUT_S + 20)
@@ -359,15 +381,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=float, default=5.0, help="minutes left out of the fit (5)")
     parser.add_argument("--interval", type=float, default=10.0, help="seconds between samples (10)")
     add_domain_option(parser, 88, "DDS domain id")
-    parser.add_argument("--chart", type=Path, default=Path("bench-soak.png"), help="PNG of the curves to write")
-    parser.add_argument("--samples", type=Path, default=None, metavar="FILE",
+    parser.add_argument("--chart", type=output_file, default="bench-soak.png", help="PNG of the curves to write")
+    parser.add_argument("--samples", type=output_file, default=None, metavar="FILE",
                         help="also write every sample as a JSON line (t_s, app, rss_kB, cpu_s)")
-    parser.add_argument("--memtrace", type=Path, default=None, metavar="DIR",
+    parser.add_argument("--memtrace", type=output_folder, default=None, metavar="DIR",
                         help="run the applications with their memory probe on (AUTOMOTIVE_MEMTRACE, every minute)")
     parser.add_argument("--report", type=Path, default=None, metavar="FILE",
                         help="run nothing: report a run from its --samples FILE (with --work)")
     parser.add_argument("--work", type=Path, default=None, metavar="DIR",
-                        help="with --report: the run's work folder (its camera_sub.jsonl and hmi.jsonl)")
+                        help="the run's work folder (the camera's and the HMI's records, the logs): a new or empty "
+                             "folder, kept (default: a temporary one, removed at the end); with --report, a run's")
     args = parser.parse_args(argv)
     if args.report is not None:
         if args.work is None or not (args.work / "camera_sub.jsonl").is_file() or not args.report.is_file():
@@ -384,10 +407,10 @@ def main(argv: list[str] | None = None) -> int:
         return report(series, Seen.read(args.work / "camera_sub.jsonl", args.work / "hmi.jsonl"), args)
     if args.minutes <= 0 or args.warmup < 0 or args.warmup >= args.minutes or args.interval <= 0:
         parser.error("--minutes must be > 0, --warmup from 0 to below --minutes, --interval > 0")
-    if not args.chart.resolve().parent.is_dir():
-        parser.error(f"--chart {args.chart}: folder {args.chart.parent} does not exist")
-    if args.samples is not None and not args.samples.resolve().parent.is_dir():
-        parser.error(f"--samples {args.samples}: folder {args.samples.parent} does not exist")
+    if args.work is not None and (args.work.exists() and not args.work.is_dir() or args.work.is_dir()
+                                  and any(args.work.iterdir())):
+        # the camera's and the HMI's records are appended to: an earlier run's would count in this one
+        parser.error(f"--work {args.work}: expected a new or empty folder")
     return bench(args)
 
 

@@ -1,7 +1,7 @@
-"""The site bridge (automotive-zenoh-bridge) against direct DDS: throughput and latency of every flow, and of 4 MiB
+"""The site bridge (automotive zenoh-bridge) against direct DDS: throughput and latency of every flow, and of 4 MiB
 frames.
 
-    automotive-bench-zenoh [--seconds 20] [--scenarios direct,loopback,shaped] [--domain 90] [--log-dir DIR]
+    automotive bench zenoh [--seconds 20] [--scenarios direct,loopback,shaped] [--domain 90] [--log-dir DIR]
 
 Three set-ups, one after the other, each in two phases:
 
@@ -10,7 +10,7 @@ Three set-ups, one after the other, each in two phases:
   (collision_avoidance, hmi) on another, on this host, joined only by two bridges over mutual TLS on 127.0.0.1;
 - ``shaped``: the same two sites in network namespaces joined by a veth pair shaped to 25 ms delay, 0.5 % loss and
   20 Mbit/s each way (tc netem, or where the kernel has none tc tbf, nftables and a delaying relay,
-  automotive-delay-relay); needs root, skipped otherwise.
+  python -m automotive.tools.delay_relay); needs root, skipped otherwise.
 
 Phase 1, the system's flows at their own rates: a probe on each site reads every flow for --seconds and records,
 for the flows written on the other site (every flow, in ``direct``), samples/s, MB/s and the latency (reception time
@@ -31,10 +31,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import signal
 import sys
-import tempfile
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -42,15 +40,15 @@ from pathlib import Path
 from typing import Any
 
 from automotive.bus import stats
-from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
 from automotive.tools import netlab
-from automotive.tools.children import Child, RunFailed, StatsChild, program_command
+from automotive.tools.children import Child, RunFailed, StatsChild, program_command, work_folder
 from automotive.tools.zenoh_certs import CertificateError
 from automotive.tools.zenoh_certs import make as make_certificates
 
-PROG = "automotive-bench-zenoh"
+PROG = "automotive bench zenoh"
 MODULE = "automotive.bench.zenoh_bridge"
 START_TIMEOUT = 120.0
 SCENARIOS = ("direct", "loopback", "shaped")
@@ -185,7 +183,7 @@ class ShapedLink:
         except AssertionError as error:
             raise RunFailed(f"the delaying relay did not start: {str(error).splitlines()[0]}") from None
         self.connect_b = f"127.0.0.1:{RELAY_PORT}"
-        self.how = "tc tbf (rate), nftables (loss), a delaying relay (automotive-delay-relay)"
+        self.how = "tc tbf (rate), nftables (loss), a delaying relay (python -m automotive.tools.delay_relay)"
         return a, b
 
     def close(self) -> None:
@@ -305,7 +303,8 @@ def measure(args: argparse.Namespace, scenarios: list[str], log_dir: Path, certs
               f"{fmt(row.p50_ms, 2):>8} {fmt(row.p99_ms, 2):>8}  {row.lost} {row.note}".rstrip())
     for note in notes:
         print(note)
-    print(f"logs and every process's JSON lines (--stats): {log_dir}")
+    if args.log_dir is not None:
+        print(f"logs and every process's JSON lines (--stats): {log_dir}")
     camera = {row.scenario: row.mb_per_s for row in rows if row.flow.startswith("CameraImageData")}
     direct, bridged = camera.get("direct"), camera.get("loopback")
     ratio = bridged / direct if direct and bridged is not None and direct == direct and bridged == bridged else None
@@ -319,11 +318,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--scenarios", default=",".join(SCENARIOS),
                         help="comma-separated, of: direct, loopback, shaped (default: all)")
     add_domain_option(parser, 90, "first DDS domain id (uses two)")
-    add_log_dir_option(parser, help="keep every process's output and JSON lines there (default: a new temporary "
-                                    "folder)")
+    add_log_dir_option(parser, help="keep every process's output and JSON lines there (default: a temporary "
+                                    "folder, removed at the end)")
     parser.add_argument("--probe", type=int, default=None, help=argparse.SUPPRESS)  # the probe child: its domain
     parser.add_argument("--stats", type=Path, default=None, help=argparse.SUPPRESS)  # the probe child's records
     args = parser.parse_args(argv)
+    if args.log_dir is not None and (problem := output_folder_problem(args.log_dir, create=True)):
+        parser.error(f"--log-dir {args.log_dir}: {problem}")  # before the run, not after it
     if args.seconds <= 0:
         parser.error(f"--seconds {args.seconds:g}: expected a positive number")
     if args.probe is not None:
@@ -336,18 +337,16 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--scenarios: expected some of {', '.join(SCENARIOS)}, got {args.scenarios!r}")
     if not 0 <= args.domain <= 231:
         parser.error(f"--domain {args.domain}: expected 0..231")
-    log_dir = args.log_dir or Path(tempfile.mkdtemp(prefix="bench-zenoh-"))
-    log_dir.mkdir(parents=True, exist_ok=True)
-    certs = Path(tempfile.mkdtemp(prefix="bench-zenoh-certs-"))  # removed at the end
-    try:
+    # The logs: --log-dir, kept, or a temporary folder; the certificates (private keys) always in a temporary folder of
+    # their own. The temporary ones are removed at the end, also on an error, Ctrl-C or SIGTERM (which ends the run as
+    # Ctrl-C does, every process stopped first).
+    with work_folder("bench-zenoh-", args.log_dir) as log_dir, work_folder("bench-zenoh-certs-") as certs:
         try:
             make_certificates(certs, [f"site-a=127.0.0.1,{ADDRESS_A}", f"site-b=127.0.0.1,{ADDRESS_B}"])
         except CertificateError as error:
             print(f"{PROG}: {error}", file=sys.stderr)
             return 2
         return measure(args, scenarios, log_dir, certs)
-    finally:
-        shutil.rmtree(certs, ignore_errors=True)
 
 
 if __name__ == "__main__":

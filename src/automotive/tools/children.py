@@ -12,6 +12,9 @@ The one helper for every program that runs other programs (the launcher, the ben
 
 :func:`program_command` is how a program of the project is started: ``python -m <module>`` with the running
 interpreter, so the child runs the same installation as the parent (no PATH, no PYTHONPATH needed).
+
+:func:`work_folder` is the folder of a run's files (the children's logs and status records): the user's, kept, or a
+temporary one, removed whichever way the run ends (an error, Ctrl-C, SIGTERM).
 """
 
 from __future__ import annotations
@@ -22,12 +25,14 @@ import re
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from types import FrameType
 from typing import IO, Any
 
 import psutil
@@ -56,6 +61,43 @@ def program_module(name: str) -> str:
 def program_command(name: str, *args: str, python: Sequence[str] = ()) -> list[str]:
     """``[python, -m, module, args...]`` with the running interpreter (``python``: a prefix such as ``chrt``)."""
     return [*python, sys.executable, "-m", program_module(name), *args]
+
+
+def _exit_as_signalled(signum: int, frame: FrameType | None) -> None:
+    raise SystemExit(128 + signum)  # the shell's code for "ended by that signal"
+
+
+@contextmanager
+def exit_on_sigterm() -> Iterator[None]:
+    """Inside the block, SIGTERM raises SystemExit (code 143) in the main thread, as Ctrl-C raises KeyboardInterrupt:
+    the program unwinds, its ``finally`` blocks stop its children and remove its folders, instead of dying where it
+    stands (SIGTERM's default). The handler only raises, it takes no lock (``automotive.bus.cli.on_signals`` says
+    why a handler must not); nothing is there to hand to the signal thread. Outside the main thread, where Python
+    sets no handler, nothing changes."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _exit_as_signalled)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)  # None: not set from Python
+
+
+@contextmanager
+def work_folder(prefix: str, keep: Path | None = None) -> Iterator[Path]:
+    """The folder of a run's files: ``keep``, a folder the user named, created if need be and never removed; or else
+    a new temporary folder (under ``TMPDIR``, named ``prefix...``) removed on the way out, whichever the way: the
+    end, an error, Ctrl-C or SIGTERM (:func:`exit_on_sigterm` holds inside the block). Stop the children that write
+    into it inside the block, so that nothing writes there once it is removed."""
+    with exit_on_sigterm():
+        if keep is not None:
+            keep.mkdir(parents=True, exist_ok=True)
+            yield keep
+            return
+        # ignore_cleanup_errors: an error while removing must not hide the one that ended the run
+        with tempfile.TemporaryDirectory(prefix=prefix, ignore_cleanup_errors=True) as folder:
+            yield Path(folder)
 
 
 @dataclass(frozen=True)
