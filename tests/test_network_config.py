@@ -1,5 +1,6 @@
 """Configuration edges of the runtime: which domain ids and participant indexes have ports, a user's CYCLONEDDS_URI
-layered over the applications' configuration, and property keys refused before a program starts."""
+layered over the applications' configuration, and property keys refused before a program starts (the applications'
+and those of the tools on the same runtime)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from apprunner import command_of
+from mcap.writer import Writer
 from test_bad_input import assert_one_line_error
 
 from automotive import config
@@ -29,7 +32,9 @@ from automotive.bus.app import RUNTIME_KEYS
 from automotive.bus.errors import ConfigError
 from automotive.bus.network import NETWORK_ELEMENTS, NetworkConfig, read_user_config
 from automotive.bus.properties import Properties, PropertyKeys
-from automotive.tools.children import StatsChild
+from automotive.tools import bridge, lidar_view, record, replay, shapes, zenoh_bridge
+from automotive.tools.children import StatsChild, program_command
+from automotive.tools.flows import system_flows
 
 TIMEOUT = 60.0
 # The tests' own CYCLONEDDS_URI (conftest): the loopback configuration.
@@ -39,6 +44,13 @@ LOOPBACK_AND_PEER = ('<General><Interfaces><NetworkInterface name="lo"/></Interf
 APPLICATIONS = {"vision": vision, "lidar": lidar, "sensor_fusion": sensor_fusion,
                 "vehicle_platform": vehicle_platform, "collision_avoidance": collision_avoidance, "hmi": hmi,
                 "camera_pub": camera_pub, "camera_sub": camera_sub}
+# The tools on the applications' runtime (automotive.bus.app.run), which declare their keys the same way.
+TOOLS = {"record": record, "replay": replay, "bridge": bridge, "zenoh_bridge": zenoh_bridge, "lidar_view": lidar_view,
+         "shapes": shapes}
+# Per tool, a close misspelling of one of its keys, and that key.
+TOOL_TYPOS = {"record": ("config.chunksize", "config.chunkSize"), "replay": ("qos.Libary", "qos.Library"),
+              "bridge": ("config.backlg", "config.backlog"), "zenoh_bridge": ("zenoh.sit", "zenoh.site"),
+              "lidar_view": ("config.imageWidht", "config.imageWidth"), "shapes": ("topic.Shape", "topic.Shapes")}
 
 
 def tracing(path: Path) -> str:
@@ -268,10 +280,24 @@ def test_an_unknown_key_names_the_nearest_and_its_file(apps, tmp_path: Path) -> 
     assert result.stdout == ""
 
 
-@pytest.mark.parametrize("name", sorted(APPLICATIONS))
+@pytest.mark.parametrize("name", sorted(TOOLS))
+def test_every_tool_refuses_an_unknown_key_before_anything_starts(apps, name: str,  # type: ignore[no-untyped-def]
+                                                                  tmp_path: Path) -> None:
+    typo, key = TOOL_TYPOS[name]
+    needed = {"record": ["-o", str(tmp_path / "out.mcap")], "replay": [str(tmp_path / "in.mcap")],
+              "shapes": ["subscribe"]}.get(name, [])  # what the command line needs before the properties count
+    result = apps.run(name, *needed, "-D", "config.nope=1", "-D", f"{typo}=1", timeout=TIMEOUT)
+    assert_one_line_error(result, rf"^{re.escape(command_of(name))}: .*{name}.properties: unknown key\(s\) for "
+                                  rf"{name}: 'config.nope' \(-D\), '{re.escape(typo)}' \(-D; did you mean "
+                                  rf"'{re.escape(key)}'\?\)$")
+    assert result.stdout == "", result.stdout  # nothing said, so nothing made (no participant, no file)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", sorted(APPLICATIONS) + sorted(TOOLS))
 def test_every_key_a_shipped_file_mentions_is_declared(name: str) -> None:
-    """The shipped properties of each application, including the commented examples (#   config.peers=...)."""
-    declared = RUNTIME_KEYS | APPLICATIONS[name].PROPERTY_KEYS
+    """The shipped properties of each program, including the commented examples (#   config.peers=...)."""
+    declared = RUNTIME_KEYS | {**APPLICATIONS, **TOOLS}[name].PROPERTY_KEYS
     path = config.properties_file(name)
     examples = re.findall(r"^#\s+([A-Za-z][\w.]*)=", path.read_text(), re.M)
     mentioned = Properties.load(path).keys() + examples
@@ -293,6 +319,51 @@ def test_every_application_reads_only_declared_keys(domain_id: int, tmp_path: Pa
     finally:
         codes = {child.name: child.stop() for child in running}
     assert codes == dict.fromkeys(APPLICATIONS, 0), [child.child.output for child in running]
+    assert not any("does not declare" in child.child.output for child in running)
+
+
+def empty_recording(path: Path) -> Path:
+    """An MCAP file with one channel of the system (the alerts) and no message: enough for the replayer to start."""
+    flow = next(flow for flow in system_flows() if flow.topic == "AlertTopic")
+    with path.open("wb") as stream:
+        writer = Writer(stream)
+        writer.start(profile="ros2", library="test")
+        schema = writer.register_schema(flow.schema.name, flow.schema.encoding, flow.schema.data)
+        writer.register_channel(flow.topic, "cdr", schema)
+        writer.finish()
+    return path
+
+
+def test_every_tool_reads_only_declared_keys(domain_id: int, tmp_path: Path) -> None:
+    """Each tool runs with its shipped properties until ready(), whose safety net ends it (exit 2) at a key read but
+    not declared; what a tool needs to get there is given on its command line (zenoh_bridge: certificates, and a link
+    to a port nothing listens on, which it keeps trying)."""
+    certificates = tmp_path / "certs"
+    made = subprocess.run(program_command("zenoh_certs", str(certificates), "site-a=127.0.0.1"), capture_output=True,
+                          text=True, timeout=TIMEOUT)
+    assert made.returncode == 0, made.stderr
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    needed = {
+        "record": ["-o", str(tmp_path / "out.mcap")],
+        "replay": [str(empty_recording(tmp_path / "in.mcap"))],  # ready, then done at once: nothing to replay
+        "bridge": ["--port", "0"],
+        "zenoh_bridge": ["-D", "zenoh.mode=peer", "-D", "zenoh.listen=", "-D", f"zenoh.connect=tls/127.0.0.1:{port}",
+                         "-D", f"zenoh.tls.ca={certificates}/ca.pem",
+                         "-D", f"zenoh.tls.certificate={certificates}/site-a.pem",
+                         "-D", f"zenoh.tls.key={certificates}/site-a.key"],
+        "lidar_view": ["--ui", "none"],
+        "shapes": ["subscribe"],
+    }
+    running = [StatsChild.start(name, name, [*needed[name], "--domain", str(domain_id), "-D", "config.matchReport=0"],
+                                tmp_path / f"{name}.jsonl") for name in TOOLS]
+    try:
+        for child in running:
+            child.wait_record("ready", timeout=TIMEOUT)
+    finally:
+        codes = {child.name: child.stop() for child in running}
+    assert codes == dict.fromkeys(TOOLS, 0), [child.child.output for child in running]
     assert not any("does not declare" in child.child.output for child in running)
 
 

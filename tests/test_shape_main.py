@@ -1,4 +1,4 @@
-"""The shape_main-compatible command (automotive.tools.shape_main, automotive-shape-main) through the OMG DDS
+"""The shape_main-compatible command (automotive.tools.shape_main, automotive shape-main) through the OMG DDS
 interoperability suite's QoS groups: against itself, and with the Fast DDS shape peer (tests/fastdds/shape_peer.cpp)
 on either side.
 
@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -25,8 +26,11 @@ from cyclonedds.qos import Policy, Qos
 from dds_helpers import wait_until
 from fastdds_peer import shape_peer
 from shape_cases import FASTDDS_PAIRS, OURS_TO_FASTDDS, SELF_CASES, Case, CaseRun, Implementation, describe
+from test_bad_input import assert_one_line_error
+from test_network_config import LOOPBACK_AND_PEER, effective, tracing
 
 from automotive.bus.endpoints import Databus
+from automotive.bus.ports import check_domain_id
 from automotive.bus.qos import WRITER_REPRESENTATION
 from automotive.tools import netlab
 from automotive.tools.shape_main import parse_options
@@ -93,11 +97,57 @@ def test_with_fastdds(case: Case, direction: str, namespace: str) -> None:
     (["-P", "-t", "Square", "--bogus"], r"unrecognized arguments: --bogus"),
 ])
 def test_bad_command_lines_end_with_one_line(args: list[str], pattern: str) -> None:
-    from test_bad_input import assert_one_line_error
-
     result = subprocess.run([sys.executable, "-m", "automotive.tools.shape_main", *args], capture_output=True,
                             text=True, cwd=ROOT, timeout=60)
-    assert_one_line_error(result, rf"^automotive-shape-main: .*{pattern}")
+    assert_one_line_error(result, rf"^automotive shape-main: .*{pattern}")
+
+
+@pytest.mark.parametrize("text", ["232", "-1", "x"])
+def test_an_impossible_domain_is_refused_in_the_words_of_every_program(text: str) -> None:
+    with pytest.raises(ValueError) as shared:  # what --domain, -D config.domainId and the launcher say
+        check_domain_id(text)
+    assert str(shared.value) == f"expected a domain id 0..231, not '{text}'"
+    result = subprocess.run([sys.executable, "-m", "automotive.tools.shape_main", "-S", "-t", "Square", "-d", text],
+                            capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert_one_line_error(result, "^" + re.escape(f"automotive shape-main: -d: {shared.value} (automotive shape-main "
+                                                  "-h shows the options)") + "$")
+    assert result.stdout == "", result.stdout
+
+
+def test_a_user_uri_is_layered_over_its_configuration_and_what_it_replaces_said_once(  # type: ignore[no-untyped-def]
+        apps, domain_id: int, tmp_path: Path) -> None:
+    """As for the applications (automotive.bus.network): the URI's network is used, the command's own tuning (the
+    reorder limits, fragment 0 of Cyclone's configuration) stays, and one warning line names what the URI replaces;
+    an explicit --interface wins over the URI's network; the tests' URI (the loopback configuration itself) replaces
+    nothing and is not mentioned."""
+    traces = {name: tmp_path / f"{name}.log" for name in ("uri", "explicit")}
+    uri = apps.start("shape_main", "-S", "-t", "Square", "-d", str(domain_id),
+                     env={"CYCLONEDDS_URI": f"{LOOPBACK_AND_PEER},{tracing(traces['uri'])}"})
+    explicit = apps.start("shape_main", "-S", "-t", "Square", "-d", str(domain_id), "--interface", "lo",
+                          env={"CYCLONEDDS_URI": f"{LOOPBACK_AND_PEER},{tracing(traces['explicit'])}"})
+    tests_uri = apps.start("shape_main", "-S", "-t", "Square", "-d", str(domain_id))
+    for process in (uri, explicit, tests_uri):
+        process.wait_for(r"^Create reader for topic: Square$", 60)
+        assert process.stop(signal.SIGINT) == 0, process.output[-3000:]
+    assert uri.count(r"^warning: network: ") == 1, uri.output
+    assert uri.count(r"^warning: network: your CYCLONEDDS_URI sets General/Interfaces, Discovery/Peers, which replace "
+                     r"the applications' network \(single host \(loopback\)\)$") == 1, uri.output
+    assert effective(traces["uri"], "Internal/PrimaryReorderMaxSamples/#text") == ["512 {0}"]
+    assert effective(traces["uri"], "General/Interfaces/NetworkInterface[@name]") == ["lo {1}"]
+    assert effective(traces["uri"], "Discovery/Peers/Peer[@Address]") == ["127.0.0.1 {2}"]
+    assert explicit.count(r"^warning: network: ") == 1, explicit.output
+    assert explicit.count(r"^warning: network: --interface replaces the network your CYCLONEDDS_URI sets "
+                          r"\(Discovery/Peers\)$") == 1, explicit.output
+    assert effective(traces["explicit"], "Discovery/Peers/Peer[@Address]") == []
+    assert "warning: network" not in tests_uri.output, tests_uri.output
+
+
+def test_an_unreadable_user_uri_is_one_line(tmp_path: Path) -> None:
+    result = subprocess.run([sys.executable, "-m", "automotive.tools.shape_main", "-S", "-t", "Square"],
+                            capture_output=True, text=True, cwd=ROOT, timeout=60,
+                            env={**os.environ, "CYCLONEDDS_URI": f"{tmp_path}/missing.xml"})
+    assert_one_line_error(result, rf"^automotive shape-main: CYCLONEDDS_URI: file '{tmp_path}/missing.xml' not found")
+    assert "Create topic" not in result.stdout, result.stdout  # refused before the participant
 
 
 def test_sigint_while_ending_keeps_the_exit_code(domain_id: int) -> None:
@@ -165,7 +215,7 @@ def test_a_write_that_times_out_is_not_the_end_of_the_publisher(apps, domain_id:
                            "100000", "-d", str(domain_id))
     subscriber.wait_for(r"^Square +BLUE +\d{3} \d{3} \[\d+\] \{255\}", 60)
     with subscriber.frozen():  # SIGSTOP: no more acknowledgements
-        publisher.wait_for(r"automotive-shape-main: write of BLUE on Square not done \(DDS_RETCODE_TIMEOUT\)", 60)
+        publisher.wait_for(r"automotive shape-main: write of BLUE on Square not done \(DDS_RETCODE_TIMEOUT\)", 60)
         assert publisher.poll() is None, publisher.output[-3000:]
     seen = subscriber.count(r"\{255\}")
     subscriber.wait_for_more(r"^Square +BLUE +\d{3} \d{3} \[\d+\] \{255\}", 1, 60)  # it writes on

@@ -24,11 +24,15 @@ from foxglove.websocket import ChannelView, Client, ServerListener
 
 from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
+from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
 from automotive.tools.flows import Flow, channel_metadata, select, system_flows
 from automotive.tools.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, SubprotocolRelay
 from automotive.wire.filteredraw import filtered_raw_reader
 from automotive.wire.rawsample import SampleKind
+
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of("config.backlog")
 
 TAKE_LIMIT = 16
 
@@ -114,7 +118,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("bridge", __doc__ or "", body, argv, add_arguments)
+    return run("bridge", __doc__ or "", body, argv, add_arguments, command="automotive foxglove-bridge",
+               keys=PROPERTY_KEYS)
 
 
 if __name__ == "__main__":

@@ -28,9 +28,13 @@ from mcap.reader import SeekingReader
 from automotive.bus.app import Application, run
 from automotive.bus.badsamples import BadSample
 from automotive.bus.errors import ConfigError
+from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
 from automotive.tools.flows import Flow, select, system_flows
 from automotive.wire.rawsample import RawSample, RawWriter, SampleKind
+
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of()
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 ACK_TIMEOUT_S = 10.0
@@ -207,7 +211,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("replay", __doc__ or "", body, argv, add_arguments)
+    return run("replay", __doc__ or "", body, argv, add_arguments, command="automotive replay",
+               keys=PROPERTY_KEYS)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """A shape_main-compatible command: the OMG DDS interoperability suite's shape application, on this project's runtime.
 
-    automotive-shape-main -P -t Square -c BLUE -r -k 0 -w          # publish BLUE squares, reliable, keep all
-    automotive-shape-main -S -t Square --cft "shapesize <= 20"     # subscribe, only the small ones
+    automotive shape-main -P -t Square -c BLUE -r -k 0 -w          # publish BLUE squares, reliable, keep all
+    automotive shape-main -S -t Square --cft "shapesize <= 20"     # subscribe, only the small ones
 
 The OMG suite (github omg-dds/dds-rtps) starts one vendor's shape application as publisher and another's as
 subscriber with the QoS of each case on the command line, and classifies the case by what they print. This command
@@ -30,8 +30,10 @@ What this command adds to Cyclone DDS, and what it cannot:
   subscriber, and GROUP ordered access over several topics on a publisher print "not supported" (the reference's
   words) and end with exit code 2. The rest of the Presentation options work.
 
-Network: loopback by default (``--network``, ``--interface``, ``--peers`` as the other applications; a user's own
-CYCLONEDDS_URI when none is given). SIGINT or SIGTERM stop it cleanly; it then prints ``Done.``.
+Network: loopback by default (``--network``, ``--interface``, ``--peers`` as the other applications). A user's own
+CYCLONEDDS_URI is layered over this configuration as the applications layer it (automotive.bus.network): what it
+sets wins, except over the network an explicit ``--network``, ``--interface`` or ``--peers`` chooses, and one
+``warning: network: ...`` line names what it replaces. SIGINT or SIGTERM stop it cleanly; it then prints ``Done.``.
 """
 
 from __future__ import annotations
@@ -57,18 +59,20 @@ from cyclonedds.topic import Topic
 from automotive import config
 from automotive.bus.app import DEFAULT_LIBRARY
 from automotive.bus.checkedreader import CheckedReader
-from automotive.bus.cli import MAX_DOMAIN_ID, on_signals
+from automotive.bus.cli import on_signals
 from automotive.bus.contentfilter import ContentFilter, FilteredReader, FilterError
 from automotive.bus.endpoints import Databus
 from automotive.bus.errors import ConfigError, refused_as_config_error
-from automotive.bus.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, user_uri
+from automotive.bus.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, read_user_config, user_uri
+from automotive.bus.ports import check_domain_id
 from automotive.bus.qos import QosProfiles
 from automotive.bus.status import policy_name
+from automotive.bus.version import add_version_option
 from automotive.cyclone import logsink
 from automotive.tools.shapes import MovingShape
 from automotive.types.shape import ShapeType
 
-PROG = "automotive-shape-main"
+PROG = "automotive shape-main"
 TYPE_NAME = "ShapeType"
 EXIT_BAD_INPUT = 2
 MS = 1_000_000  # nanoseconds
@@ -205,6 +209,7 @@ def _integer(option: str, value: str, minimum: int | None = None) -> int:
 
 def parse_options(argv: Sequence[str]) -> ShapeOptions:
     parser = _Parser(prog=PROG, add_help=False, allow_abbrev=False)
+    add_version_option(parser)
     for flag in ("-h", "--help", "-P", "-S", "-w", "-R", "--coherent", "--ordered", "--take-read"):
         parser.add_argument(flag, action="store_true", dest=flag.lstrip("-").replace("-", "_"))
     # -b and -r set one value: the last one given wins, as in the reference.
@@ -231,9 +236,10 @@ def parse_options(argv: Sequence[str]) -> ShapeOptions:
     if (text := get("-v")) is not None:
         o.debug = _choice("-v", text, "ed") == "d"
     if (text := get("-d")) is not None:
-        o.domain_id = _integer("-d", text, 0)
-        if o.domain_id > MAX_DOMAIN_ID:
-            raise UsageError(f"-d {text}: expected a domain id 0..{MAX_DOMAIN_ID}")
+        try:  # the same words as every program's domain option (automotive.bus.ports)
+            o.domain_id = check_domain_id(text)
+        except ValueError as error:
+            raise UsageError(f"-d: {error}") from None
     if (text := get("-k")) is not None:
         o.history_depth = _integer("-k", text, 0)
     if (text := get("-f")) is not None:
@@ -455,25 +461,33 @@ class ShapeApplication:
         self.write_warned_at = -float("inf")
         log = logging.getLogger(PROG)
         log.addHandler(logging.StreamHandler(sys.stderr))
-        self.bus = Databus(o.domain_id, QosProfiles(config.qos_file()), DEFAULT_LIBRARY, log, self._network(),
-                           "shape_main")
+        network, notice = self._network()
+        if notice is not None:
+            console.line(f"warning: {notice}")
+        self.bus = Databus(o.domain_id, QosProfiles(config.qos_file()), DEFAULT_LIBRARY, log, network, "shape_main")
         self.topics: list[Topic[ShapeType]] = []
         for name in o.topic_names():
             console.line(f"Create topic: {name}")
             self.topics.append(self.bus.topic(name, ShapeType))
 
-    def _network(self) -> NetworkConfig | None:
+    def _network(self) -> tuple[NetworkConfig, str | None]:
+        """The network configuration, under the user's CYCLONEDDS_URI when one is set (as automotive.bus.app layers
+        it for the applications), and the line saying what that URI replaces; --network, --interface or --peers is
+        an explicit choice that wins over the URI's network."""
         o = self.o
-        if user_uri() is not None and o.network is None and o.interface is None and o.peers is None \
-                and not o.datafrag_size:
-            return None
         peers = [peer.strip() for peer in (o.peers or "").split(",") if peer.strip()]
-        config = NetworkConfig.from_settings(o.network or "", o.interface or "", peers, DEFAULT_MAX_PARTICIPANTS,
-                                             False, "command line")
-        config = dataclasses.replace(config, reorder_samples=REORDER_SAMPLES)
+        own = NetworkConfig.from_settings(o.network or "", o.interface or "", peers, DEFAULT_MAX_PARTICIPANTS,
+                                          False, "command line")
+        own = dataclasses.replace(own, reorder_samples=REORDER_SAMPLES)
         if o.datafrag_size:
-            config = dataclasses.replace(config, large_data=True, fragment_size=o.datafrag_size)
-        return config
+            own = dataclasses.replace(own, large_data=True, fragment_size=o.datafrag_size)
+        uri = user_uri()
+        if uri is None:
+            return own, None
+        explicit = next((option for option, value in (("--network", o.network), ("--interface", o.interface),
+                                                      ("--peers", o.peers)) if value is not None), "")
+        layering = own.layered(read_user_config(uri, o.domain_id), explicit)
+        return layering.network, layering.notice
 
     def _listener(self, topic: str) -> ShapeListener:
         listener = ShapeListener(self.console, topic)

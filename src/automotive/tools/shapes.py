@@ -24,8 +24,12 @@ from cyclonedds.core import InstanceState
 
 from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
+from automotive.bus.properties import PropertyKeys
 from automotive.bus.samplerules import CANVAS_HEIGHT, CANVAS_WIDTH
 from automotive.types.automotive import ShapeType
+
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of("config.pubInterval", "config.speed", "config.shapesize", roles=["Shapes"])
 
 BOX_WIDTH, BOX_HEIGHT = CANVAS_WIDTH, CANVAS_HEIGHT
 GONE_STATES = {
@@ -134,7 +138,8 @@ def body(app: Application) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("shapes", __doc__ or "", body, argv, add_arguments)
+    return run("shapes", __doc__ or "", body, argv, add_arguments, command="automotive shapes-demo",
+               keys=PROPERTY_KEYS)
 
 
 if __name__ == "__main__":

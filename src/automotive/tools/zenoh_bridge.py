@@ -48,7 +48,7 @@ from automotive.bus.app import Application, run
 from automotive.bus.badsamples import BadSample
 from automotive.bus.budget import Budget, SampleQueue
 from automotive.bus.errors import ConfigError
-from automotive.bus.properties import Properties
+from automotive.bus.properties import Properties, PropertyKeys
 from automotive.bus.stats import Every
 from automotive.cyclone import liveliness
 from automotive.tools.flows import Flow, select, system_flows
@@ -65,7 +65,16 @@ from automotive.wire.zenoh_link import (
     zenoh_config,
 )
 
-BRIDGE_MARK = b"automotive-zenoh-bridge"  # the user data of every writer a bridge creates
+# The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
+PROPERTY_KEYS = PropertyKeys.of(
+    # the link (automotive.wire.zenoh_link.LinkSettings)
+    "zenoh.site", "zenoh.scope", "zenoh.mode", "zenoh.listen", "zenoh.connect", "zenoh.tls.ca", "zenoh.tls.certificate",
+    "zenoh.tls.key", "zenoh.allowPlainTcp", "zenoh.lease",
+    # the topics and their budgets
+    "bridge.allow", "bridge.deny", "bridge.maxFrequency", "bridge.maxMbps", "bridge.priority", "bridge.queueDepth",
+    "bridge.queueMB", "bridge.readerDepth", "bridge.livelinessLease")
+
+BRIDGE_MARK = b"automotive zenoh-bridge"  # the user data of every writer a bridge creates
 TAKE_LIMIT = 64
 STATUS_INTERVAL_S = 1.0
 PRIORITIES = {"real_time": zenoh.Priority.REAL_TIME, "interactive_high": zenoh.Priority.INTERACTIVE_HIGH,
@@ -621,7 +630,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run("zenoh_bridge", __doc__ or "", body, argv, add_arguments)
+    return run("zenoh_bridge", __doc__ or "", body, argv, add_arguments, command="automotive zenoh-bridge",
+               keys=PROPERTY_KEYS)
 
 
 if __name__ == "__main__":
