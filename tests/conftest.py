@@ -27,7 +27,6 @@ os.environ["AUTOMOTIVE_LOG_LEVEL"] = "debug"
 cyclone.start()
 
 
-
 def worker_domain_ids(worker: str, workers: int, first: int = 100, last: int = 230) -> range:
     """The domain ids of one pytest-xdist worker (``gw0``, ``gw1``...; one worker without xdist): ``first..last``
     shared out, so that tests on two workers never meet on a domain. Ids below 100 are left to the few tests that
@@ -41,6 +40,53 @@ def worker_domain_ids(worker: str, workers: int, first: int = 100, last: int = 2
 # once it has run that many such tests; each test's processes are gone by then).
 _domain_ids = itertools.cycle(worker_domain_ids(os.environ.get("PYTEST_XDIST_WORKER", "gw0"),
                                                 int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))))
+
+
+# -- the fast tier (scripts/test --fast): tests that start no process -------------------------------------------------
+# Whole modules whose tests start no process and answer quickly (less those marked not_fast); a test elsewhere joins
+# with @pytest.mark.fast.
+FAST_MODULES = {"test_badsamples", "test_codecs", "test_csvdata", "test_layers", "test_pointcloud", "test_properties",
+                "test_qos", "test_rawsample", "test_soak", "test_types", "test_wsrelay"}
+
+
+# -- workers (scripts/test runs pytest-xdist with --dist loadgroup) ----------------------------------------------------
+# A module runs whole on one worker (its module fixtures, a system started once, process-wide switches such as the
+# fast paths stay with its tests), except these, whose tests are independent of each other and of the process (each
+# in a network namespace of its own) and together take longer than any other module: they are shared out test by test.
+SPREAD_MODULES = {"test_shape_main"}
+
+
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        module = item.module.__name__ if item.module is not None else ""
+        if module in FAST_MODULES and item.get_closest_marker("not_fast") is None:
+            item.add_marker(pytest.mark.fast)
+        if module not in SPREAD_MODULES:
+            item.add_marker(pytest.mark.xdist_group(module))
+
+
+class ProcessStarted(RuntimeError):
+    pass
+
+
+@pytest.fixture(autouse=True)
+def _fast_tests_start_no_process(request: pytest.FixtureRequest) -> Iterator[None]:
+    """A test of the fast tier that starts a process fails: the tier's promise is checked on every run."""
+    if request.node.get_closest_marker("fast") is None:
+        yield
+        return
+    original = subprocess.Popen._execute_child  # type: ignore[attr-defined]
+
+    def refuse(self: subprocess.Popen[bytes], args: object, *rest: object, **kwargs: object) -> None:
+        raise ProcessStarted(f"a test of the fast tier started a process ({args!r}): take it out of FAST_MODULES or "
+                             "its @pytest.mark.fast (tests/conftest.py)")
+
+    subprocess.Popen._execute_child = refuse  # type: ignore[attr-defined]
+    try:
+        yield
+    finally:
+        subprocess.Popen._execute_child = original  # type: ignore[attr-defined]
 
 
 @pytest.fixture

@@ -18,6 +18,7 @@ Octet arrays and sequences arrive as {"size", "crc32"} (zlib's CRC-32), with "ba
 from __future__ import annotations
 
 import base64
+import fcntl
 import json
 import re
 import shutil
@@ -45,8 +46,11 @@ def build() -> Path:
         pytest.fail(f"the Fast DDS test peer cannot be built: {', '.join(missing)} not found; "
                     f"scripts/setup installs the Debian packages {PACKAGES}", pytrace=False)
     started = time.monotonic()
-    result = subprocess.run(["make", "-s", "-j2", "-C", str(SOURCES), f"OUT={BUILD}"], capture_output=True,
-                            text=True, timeout=BUILD_TIMEOUT)
+    BUILD.mkdir(parents=True, exist_ok=True)
+    with open(BUILD / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # the test workers of one run (pytest-xdist) build once, one after the other
+        result = subprocess.run(["make", "-s", "-j2", "-C", str(SOURCES), f"OUT={BUILD}"], capture_output=True,
+                                text=True, timeout=BUILD_TIMEOUT)
     if result.returncode != 0:
         hint = "" if Path("/usr/include/fastdds").is_dir() else \
             f" (no Fast DDS headers: scripts/setup installs the Debian packages {PACKAGES})"

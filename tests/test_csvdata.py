@@ -122,6 +122,7 @@ def test_platform_data_file() -> None:
     assert max(row.velocity for row in rows) - min(row.velocity for row in rows) > 2.0
 
 
+@pytest.mark.not_fast  # runs the generator as its command
 def test_generator_is_deterministic(tmp_path: Path) -> None:
     subprocess.run([sys.executable, "-m", "automotive.tools.make_scene_data", "--out", str(tmp_path)],
                    check=True, capture_output=True, timeout=60)
