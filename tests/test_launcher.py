@@ -247,7 +247,7 @@ def test_stop_without_a_launcher_says_so(tmp_path: Path) -> None:
 
 def test_a_child_that_keeps_no_lines_hands_each_to_its_callback() -> None:
     """The launcher's children (keep=False): every line reaches the callback, none stays in the parent's memory
-    (a system that runs for hours prints millions of lines; issue 20)."""
+    (a system that runs for hours prints millions of lines)."""
     seen: list[str] = []
     child = children.Child("printer", [sys.executable, "-c", "for n in range(2000): print(f'line {n}')"],
                            on_line=lambda child, line: seen.append(line.text), keep=False)

@@ -1,4 +1,4 @@
-"""Memory does not grow with the events a running application handles (issue 20): a guard without timing.
+"""Memory does not grow with the events a running application handles: a guard without timing.
 
 Each test drives a piece of the runtime through thousands of events in-process (camera frames taken, verified and
 counted; vision samples written and taken; status events: matches, unmatches, liveliness), after a warm-up that
@@ -247,8 +247,8 @@ def test_the_memory_probe_writes_what_tells_the_layers_apart(tmp_path: Path, mon
 
 
 def test_receive_buffers_are_small_and_malloc_settles() -> None:
-    """The two settings that stop the saw-tooth (docs/memory.md): in every network mode Cyclone's receive buffers
-    are 256 KiB instead of 1 MiB, and glibc's thresholds are fixed before the first buffer is allocated."""
+    """The two settings that stop the saw-tooth (docs/measurements/memory.md): in every network mode Cyclone's receive
+    buffers are 256 KiB instead of 1 MiB, and glibc's thresholds are fixed before the first buffer is allocated."""
     for network in (NetworkConfig(), NetworkConfig.from_settings(interface="eth1"),
                    NetworkConfig.from_settings(peers=["10.0.0.2"], large_data=True)):
         xml = network.cyclone_xml(PeerPlan(remote=("10.0.0.2",), route_source="10.0.0.1"))
@@ -304,9 +304,9 @@ print(json.dumps({"touched": touched, "freed": freed, "trimmed": rss_kB(), "rele
 
 
 def test_a_burst_freed_below_a_live_block_is_given_back_by_a_trim() -> None:
-    """Cause 5 of docs/memory.md: 8 MiB freed under a live block stays resident with the applications' thresholds
-    (glibc trims only the top of a heap), and malloc_trim(0), which every application calls once a minute, returns
-    it."""
+    """Cause 5 of docs/measurements/memory.md: 8 MiB freed under a live block stays resident with the applications'
+    thresholds (glibc trims only the top of a heap), and malloc_trim(0), which every application calls once a minute,
+    returns it."""
     result = subprocess.run([sys.executable, "-c", _BURST_BELOW_A_LIVE_BLOCK], capture_output=True, text=True,
                             timeout=60, check=True)
     figures = json.loads(result.stdout)

@@ -27,14 +27,14 @@ application's take: Cyclone's path and the wake-up of the taking thread) and eac
 
 The C chain: ``ddsperf ping``/``pong`` (Cyclone's C tool, loopback) round trip / 2 at each hop's serialized size
 (vision sample, object list, alert) and at the applications' rate (--c-rate, by default the vision sensors': a hop
-after 100 ms of idleness costs several times one after 10 ms, in C as in Python, docs/codecs.md); its p99s added up.
---vision-interval 10 runs the same chain ten times as often, which shows how much of a hop is the wake-up of an idle
-process.
+after 100 ms of idleness costs several times one after 10 ms, in C as in Python, docs/measurements/alert-latency.md);
+its p99s added up. --vision-interval 10 runs the same chain ten times as often, which shows how much of a hop is the
+wake-up of an idle process.
 ``chain_vs_c`` = alert total p99 / the C chain's p99; ``x p50`` and ``x p99`` compare each hop with its C counterpart.
 ddsperf prints its percentiles once a second, and the median of those is taken: at 10 Hz a second's "99%" is the
 slowest of its 10 round trips, so the C p99 shown is nearer the true 90th-95th percentile (C looks faster, not slower).
 
-Goals (issue 17, on a quiet machine): whole chain p99 <= 2 ms with small lists and <= 3 ms with full ones; no hop above
+Goals (on a quiet machine): whole chain p99 <= 2 ms with small lists and <= 3 ms with full ones; no hop above
 10x its C counterpart. Vision samples hold at most 10 objects (Vision::VisionSensor's bound); sensor fusion in event
 mode lists the objects of the samples taken at once, so lists stay small unless it falls behind (the mean list size is
 printed). The goals are p99s, judged over at least 100 alerts (a p99 of fewer is only their slowest): a

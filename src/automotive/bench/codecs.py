@@ -17,7 +17,7 @@ shipped vision rows for --sensors sensor ids at 10 Hz each; its CPU (user + syst
 --window seconds divided by the vision samples written: with the codecs, and with AUTOMOTIVE_CODECS=off (Cyclone's
 serializer) side by side.
 
-Targets (issue 17): SensorObjectList(128) serialize + deserialize into dataclasses <= 350 us and >= 10x Cyclone's,
+Targets: SensorObjectList(128) serialize + deserialize into dataclasses <= 350 us and >= 10x Cyclone's,
 into numpy views <= 30 us; every other type >= 5x; sensor fusion <= 50 us of CPU per vision sample. The last line is
 codec_speedup_min=<x> sol128_us=<y> sol128_view_us=<z> fusion_us_per_sample=<w>. The fusion target is judged over
 at least 2,000 vision samples (--sensors x 10 x --window): CPU time counts in ticks of 10 ms; fewer print the figure

@@ -24,7 +24,7 @@ moment of a sample, which the applications give back within their trim interval 
 that stays is held. The launcher is shown too (it reads every line the applications print), outside the goal. A
 PNG (--chart) shows the curves and the fitted lines.
 
-Goal (issue 20): every application's slope at most 200 kB/h, its highest RSS held in the last 10 minutes no higher
+Goal: every application's slope at most 200 kB/h, its highest RSS held in the last 10 minutes no higher
 than in the 10 minutes after the warm-up (by more than a receive buffer, 256 KiB, whose fill moves RSS up and down),
 0 camera gaps and mismatches. It needs a run of the warm-up and 20 minutes (both windows whole, one after the other):
 a shorter one prints its figures and "too short to judge" instead of a verdict (a verdict still when an application
@@ -63,9 +63,9 @@ COMPARE_WINDOW_S = 600.0  # "minutes 5-15" and "the last 10 minutes"
 HELD_S = 90.0
 # The last 10 minutes may hold a level this much above minutes 5-15: one of Cyclone's receive buffers
 # (automotive.bus.network.RECEIVE_BUFFER_SIZE), whose pages are resident as far as datagrams have filled it, so that a
-# process's RSS rises by up to a buffer and falls when the next one starts (docs/memory.md, cause 2), for minutes at a
-# time in a process that receives little: a level that moves, not a trend. A step bigger than that fails; the slope
-# is the trend.
+# process's RSS rises by up to a buffer and falls when the next one starts (docs/measurements/memory.md, cause 2), for
+# minutes at a time in a process that receives little: a level that moves, not a trend. A step bigger than that fails;
+# the slope is the trend.
 PEAK_TOLERANCE_KB = 256
 
 

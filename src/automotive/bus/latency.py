@@ -3,8 +3,8 @@ samples, a histogram of logarithmic bins (``LatencyHistogram``, a viewer that ru
 rank ``int(fraction * count)`` in sorted order, so their figures compare.
 
 A viewer that runs for hours cannot keep every latency (camera_sub kept two numbers per frame: +143 kB a minute,
-docs/memory.md). In the bus layer so that every program that measures latency (camera_sub, the benchmarks) shares
-it. Written here rather than taken from the `hdrhistogram` package, which does this job but requires
+docs/measurements/memory.md). In the bus layer so that every program that measures latency (camera_sub, the benchmarks)
+shares it. Written here rather than taken from the `hdrhistogram` package, which does this job but requires
 setuptools >= 83 at run time: that setuptools has no `pkg_resources`, which RTI's Connector (the tests' RTI peer)
 imports, so installing it broke the RTI tests.
 """

@@ -1,9 +1,9 @@
 """glibc's allocator set once per process, so that a running application's resident memory settles and stays flat.
 
-What glibc does by default (measured here, docs/memory.md): a block of 128 kB or more is mmapped, and freeing such a
-block raises that threshold to the block's size (up to 32 MiB) and the trim threshold to twice that. Cyclone's
-receive buffers (automotive.bus.network.RECEIVE_BUFFER_SIZE) are such blocks: the first two are mmapped, each new
-one's pages become resident as datagrams fill it and are returned when it is freed; only after that does the
+What glibc does by default (measured here, docs/measurements/memory.md): a block of 128 kB or more is mmapped, and
+freeing such a block raises that threshold to the block's size (up to 32 MiB) and the trim threshold to twice that.
+Cyclone's receive buffers (automotive.bus.network.RECEIVE_BUFFER_SIZE) are such blocks: the first two are mmapped, each
+new one's pages become resident as datagrams fill it and are returned when it is freed; only after that does the
 threshold rise and the next buffers come from the receive thread's arena, whose pages are then reused. So a process
 that receives little saw-toothed for several buffers' worth of traffic before it settled. With fixed thresholds, set
 before the participant (and its first receive buffer) exists, every buffer comes from the arena from the start and
@@ -20,8 +20,8 @@ processes raise both further for their 4 MiB frames (automotive.wire.camera.tune
 
 Thresholds act only at the top of an arena. Memory freed below a live block (a burst of LiDAR clouds or camera
 frames queued while the process was descheduled, freed in another order than allocated) stays resident however low
-the trim threshold is: such bursts were the steps left in the 2-hour soak (docs/memory.md, cause 5). So every
-application looks once a minute whether its resident memory grew and then gives its free memory back
+the trim threshold is: such bursts were the steps left in the 2-hour soak (docs/measurements/memory.md, cause 5). So
+every application looks once a minute whether its resident memory grew and then gives its free memory back
 (:class:`PeriodicTrim`, glibc's ``malloc_trim``, which since glibc 2.8 returns the free pages inside every arena and
 the main heap's top beyond the trim threshold, though not a thread arena's top): what a burst leaves is resident for
 a minute at most. Only when it grew, and only beyond the trim threshold at the top: a trim every minute regardless

@@ -85,9 +85,9 @@ PROBE_FOREVER = "inf"
 # buffer becomes resident when the first datagram reaches it, so a process's RSS climbs with every byte received
 # until the buffer is full and freed: with Cyclone's default of 1 MiB, an application that receives little (a
 # sensor that only hears the other participants' discovery, about 2 kB/s) climbed for 8-15 minutes, then dropped,
-# then climbed again while glibc placed the next buffers in the thread's arena (docs/memory.md). A quarter of that
-# makes the climb end within the first minutes and bounds it at a few hundred kB; it still holds two of the largest
-# datagrams (64 KiB, the receive chunk of 128 KiB plus one more), so no allocation per datagram is added.
+# then climbed again while glibc placed the next buffers in the thread's arena (docs/measurements/memory.md). A quarter
+# of that makes the climb end within the first minutes and bounds it at a few hundred kB; it still holds two of the
+# largest datagrams (64 KiB, the receive chunk of 128 KiB plus one more), so no allocation per datagram is added.
 RECEIVE_BUFFER_SIZE = "256KiB"
 LOCALHOST = "127.0.0.1"
 _HOST_NAME = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?$")

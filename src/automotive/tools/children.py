@@ -118,7 +118,7 @@ class Child:
 
     ``keep=False`` hands each line to ``on_line`` only and keeps none (no :attr:`records`, nothing for
     :meth:`wait_for`): a child that runs for hours (the launcher's applications) would otherwise cost its parent
-    memory for every line it ever printed (issue 20: the launcher grew 1.4 MB a minute with the whole system).
+    memory for every line it ever printed (the launcher grew 1.4 MB a minute with the whole system when it did).
     """
 
     def __init__(self, name: str, command: Sequence[str], *, cwd: Path | None = None,

@@ -1,8 +1,8 @@
 """Large samples through shared memory on one host (iceoryx2), beside DDS: ``config.transport=shm``.
 
-No Cyclone DDS build installable here moves Python samples through shared memory (docs/shared-memory.md), so this
-transport sits beside DDS rather than inside it, the way RTI's Zero Copy does for a same-host reader:
-
+No Cyclone DDS build installable here moves Python samples through shared memory
+(docs/measurements/cyclone-shared-memory.md), so this transport sits beside DDS rather than inside it, the way RTI's
+Zero Copy does for a same-host reader:
 * The shared-memory sample holds exactly the bytes of the DDS sample (encapsulation, header fields, image). The
   publisher builds the frame in place in memory it loans from iceoryx2; a subscriber decodes it with the same
   :class:`~automotive.wire.camera.FrameCodec` as a DDS sample and views the image in place, read-only.
