@@ -222,3 +222,16 @@ def test_failover_too_short_says_so_and_leaves_no_folder(tmpdir_of_run: Path, do
     assert not any(line.startswith("  goal") for line in out)
     assert out[-1].startswith("failover_p99_ms=")
     assert left_in(tmpdir_of_run) == []
+
+
+def test_console_counts_the_launchers_lines_and_a_short_run_is_not_judged(tmpdir_of_run: Path,
+                                                                             domain_id: int) -> None:
+    result = bench("console", "--seconds", "8", "--steady", "4", "--domain", str(domain_id), "--", "vision",
+                   "sensor_fusion", tmpdir=tmpdir_of_run)
+    lines = result.stdout.splitlines()
+    # both applications' status lines are counted (at least one each in 8 s), and no sample line
+    assert re.search(r"^vision +[1-9]\d* ", result.stdout, re.MULTILINE), result.stdout
+    assert re.search(r"^sensor_fusion +[1-9]\d* ", result.stdout, re.MULTILINE), result.stdout
+    assert "too short to judge: the goal is over 60 s (this run: 8 s)" in lines, result.stdout
+    assert re.fullmatch(r"console_lines_per_s=\d+\.\d\d", lines[-1]), lines[-1]
+    assert left_in(tmpdir_of_run) == []

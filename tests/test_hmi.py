@@ -4,10 +4,13 @@ the source's state told apart from its word (no alert source, no alert state yet
 from __future__ import annotations
 
 import os
+import pty
 import re
+import select
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -29,13 +32,13 @@ def alert(**flags: bool) -> DriverAlerts:
 
 
 def box(title: str) -> str:
-    """The console alert box's top line with ``title``."""
-    return rf"^\+=+ {re.escape(title)} =+\+$"
+    """The console alert box with ``title`` (into a pipe: its title bar and its lines on one line)."""
+    return rf"^\+=+ {re.escape(title)} =+\+ "
 
 
 def boxes(output: str) -> list[str]:
     """The titles of the console boxes shown, in order."""
-    return re.findall(r"^\+=+ (.+?) =+\+$", output, re.MULTILINE)
+    return re.findall(r"^\+=+ (.+?) =+\+ ", output, re.MULTILINE)
 
 
 @pytest.fixture
@@ -65,7 +68,7 @@ def test_console_alert_box_with_a_text_per_flag(apps, domain_id: int) -> None:  
     wait_until(lambda: len(writer.get_matched_subscriptions()) == 1, what="the HMI's reader")
     writer.write(alert(frontCollision=True, blindSpotPassenger=True))
     hmi.wait_for(r"DRIVER ALERT: Vehicle in the blind spot, passenger side; Front collision warning")
-    hmi.wait_for(r"^\| Front collision warning")
+    hmi.wait_for(r"=\+ Vehicle in the blind spot, passenger side \| Front collision warning$")
     writer.write(alert())
     hmi.wait_for(r"hmi debug: all clear")
     hmi.wait_for(box("all clear"))
@@ -106,7 +109,7 @@ def test_console_tells_no_source_from_all_clear_and_from_a_lost_source(  # type:
     hmi.wait_for(box("ALERT SOURCE LOST"), timeout=LEASE_S + 10)
     # The writer's liveliness lease, not the later end of its participant, told the HMI.
     hmi.wait_for(r"hmi WARNING: alert source LOST: the alert writer's liveliness was lost")
-    hmi.wait_for(r"^\| Last alert: Front collision warning")
+    hmi.wait_for(r"=\+ .*\| Last alert: Front collision warning")
     assert boxes(hmi.output) == ["no alert source", "no alert state yet", "all clear", "!!! DRIVER ALERT !!!",
                                  "ALERT SOURCE LOST"], hmi.output
 
@@ -253,3 +256,26 @@ def test_auto_with_an_unreachable_display_takes_the_console(apps, domain_id: int
     assert "'offscreen'" in line or "'dummy'" in line, line
     assert hmi.stop(signal.SIGTERM) == 0
     assert "XDG_RUNTIME_DIR" not in hmi.output  # SDL's probing is not shown beside the HMI's one line
+
+
+def test_on_a_terminal_the_console_alert_is_a_box(domain_id: int) -> None:
+    """Into a pipe the alert is one line (the launcher's console, a log); on a terminal it is a box."""
+    controller, terminal = pty.openpty()
+    process = subprocess.Popen([sys.executable, "-m", "automotive.apps.hmi", "--ui", "console", "--domain",
+                                str(domain_id)], stdin=subprocess.DEVNULL, stdout=terminal, stderr=subprocess.PIPE)
+    os.close(terminal)
+    seen = b""
+    try:
+        deadline = time.monotonic() + 30
+        while b"| Collision avoidance not seen" not in seen and time.monotonic() < deadline:
+            if select.select([controller], [], [], 0.5)[0]:
+                try:
+                    seen += os.read(controller, 4096)
+                except OSError:  # the terminal's other end closed: the HMI ended
+                    break
+    finally:
+        process.terminate()
+        process.wait(timeout=15)
+        os.close(controller)
+    text = seen.decode(errors="replace").replace("\r\n", "\n")
+    assert re.search(r"^\+=+ no alert source =+\+\n\| Collision avoidance not seen", text, re.MULTILINE), text

@@ -69,6 +69,7 @@ BENCHMARKS: dict[str, Command] = {
     "filter": Command("automotive.bench.filter", "content filters' cost"),
     "codecs": Command("automotive.bench.codecs", "the generated codecs and sensor fusion's CPU"),
     "alert-latency": Command("automotive.bench.alert_latency", "vision to driver alert, end to end"),
+    "console": Command("automotive.bench.console", "how many lines a second the launcher's console shows"),
 }
 GROUPS = {"run": (APPS, "application"), "bench": (BENCHMARKS, "benchmark")}
 

@@ -17,6 +17,7 @@ Object lists older than the liveliness lease when taken are not answered: the in
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 from typing import Any
@@ -160,7 +161,9 @@ def body(app: Application) -> None:
                 stamp = time.time_ns()
                 alert_writer.write(ALL_CLEAR, timestamp=stamp)
                 app.stats.record("write", topic=topics["alerts"], src=stamp, inputs=[source], attention=False)
-                app.log.info("all clear: no object taller than %.1f m", alert_size)
+                # the first verdict, when it is all clear, clears nothing: the HMI's box shows it, -v this line
+                app.log.log(logging.INFO if alert_active else logging.DEBUG, "all clear: no object taller than %.1f m",
+                            alert_size)
                 app.stats.record("alert", state="clear")
                 alert_active = False
             sample_id = commands.next_id()

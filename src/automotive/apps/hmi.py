@@ -175,15 +175,24 @@ class AlertUI(Protocol):
 
 
 class ConsoleUI:
-    """A boxed, unmistakable alert on standard output."""
+    """A boxed, unmistakable alert on standard output: a box on a terminal; its title bar and its lines on one line
+    where the output goes to a pipe or a file (the launcher's console, a log), so that it stands out there as one line
+    among the others instead of three."""
 
     WIDTH = 56
     TITLES = {Shown.NO_SOURCE: "no alert source", Shown.NO_STATE: "no alert state yet",
               Shown.LOST: "ALERT SOURCE LOST", Shown.CLEAR: "all clear", Shown.ALERT: "!!! DRIVER ALERT !!!"}
 
+    def __init__(self, boxed: bool | None = None) -> None:
+        self.boxed = sys.stdout.isatty() if boxed is None else boxed
+
     def render(self, view: AlertView) -> None:
         inner = self.WIDTH - 2
-        print("+" + f" {self.TITLES[view.shown]} ".center(inner, "=") + "+")
+        title = "+" + f" {self.TITLES[view.shown]} ".center(inner, "=") + "+"
+        if not self.boxed:
+            print(f"{title} {' | '.join(box_lines(view))}", flush=True)
+            return
+        print(title)
         for line in box_lines(view):
             print("| " + line.ljust(inner - 2) + " |")
         print("+" + "=" * inner + "+", flush=True)
@@ -303,7 +312,7 @@ def body(app: Application, ui: AlertUI, why_console: str) -> None:
             else:
                 change = source.liveliness_changed(writer, count, alive_change, not_alive_change)
             if change is SourceChange.FOUND:
-                app.log.info("alert source found: a live alert writer matched")
+                app.log.log(shown_level, "alert source found: a live alert writer matched")  # the box says it too
             elif change is SourceChange.LOST:
                 app.log.warning("alert source LOST: %s", source.lost_reason)
                 # what the driver is told: lost (why: a writer that left cleanly, at a shutdown, counts too), or back

@@ -120,7 +120,7 @@ def body(app: Application) -> None:
     frame_id = app.props.get_str("config.frameId", FRAME_ID)
     scene = LidarScene(grid, noise_m=noise_m)
     writer = app.writer("Lidar", PointCloud2_, "rt/LidarTopic")
-    circles = app.reader("Shapes", ShapeType, "Circle")
+    circles = app.reader("Shapes", ShapeType, "Circle", optional=True)  # spheres only while Shapes Demo runs
     tracker = ShapeTracker(scene, app, circles if isinstance(circles, CheckedReader) else None)
     app.log.info("lidar: %d azimuth x %d polar steps, %d points, %d bytes a cloud, every %g ms",
                  grid.width, grid.height, grid.point_count, grid.sample_bytes, interval_ms)

@@ -156,6 +156,7 @@ class Application:
         # (``status_figure``); 0 turns it off.
         self.status_interval_s = props.get_float("config.statusInterval", console.STATUS_INTERVAL_S, minimum=0)
         self.status_figure: Callable[[], str] | None = None
+        self.optional_topics: set[str] = set()  # inputs the application does without (reader(..., optional=True))
         self.stats = Stats(getattr(args, "stats", None), self.instance_name)
         # Bad samples from the bus: one line per topic and kind, then a count every config.badSampleReport seconds.
         self.reporter = badsamples.configure(log, props.get_float("config.badSampleReport",
@@ -165,7 +166,11 @@ class Application:
         # Content filters of the readers, per topic (config.filter.<Topic>, --filter TOPIC=EXPR).
         self.filters = TopicFilters(props, getattr(args, "filters", []))
         self.network, notice = self._network_config()
-        log.info("network: %s", self.network.describe())
+        # The shipped default (one host, no configuration of the user's) is what everyone expects: said at DEBUG;
+        # anything else is worth a line.
+        shipped_default = (self.network.mode == "loopback" and not self.network.user_config
+                           and not self.network.network_from_user)
+        log.log(logging.DEBUG if shipped_default else logging.INFO, "network: %s", self.network.describe())
         if notice is not None:
             log.warning("%s", notice)
         self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, self.instance_name,
@@ -216,10 +221,13 @@ class Application:
                                           maximum=2**31 - 1)
         return self.bus.writer(self.topic_name(role, default_topic), data_type, profile, hook, strength)
 
-    def reader(self, role: str, data_type: type[T], default_topic: str, hook: EventHook | None = None) -> DataReader[T]:
+    def reader(self, role: str, data_type: type[T], default_topic: str, hook: EventHook | None = None,
+               optional: bool = False) -> DataReader[T]:
         """A reader of ``topic.<role>`` with the profile ``qos.<role>.Profile``, filtered when the topic has a
-        content filter."""
+        content filter; ``optional``: an input the application does without (no warning while nobody writes it)."""
         topic = self.topic_name(role, default_topic)
+        if optional:
+            self.optional_topics.add(topic)
         return self.bus.reader(topic, data_type, self.profile(role), hook,
                                content_filter=self.filters.predicate(topic, data_type))
 
@@ -263,7 +271,11 @@ class Application:
             return
         unmatched = self.bus.unmatched()
         for line in unmatched:
-            self.log.warning("%s after %g s", line, self.match_report_s)
+            # An optional input (the LiDAR's Shapes Demo circles) is often absent by design: its status line's 0/s
+            # says so; a warning would cry wolf in every default run.
+            optional = any(line.startswith(f"[{topic}] reader") for topic in self.optional_topics)
+            self.log.log(logging.DEBUG if optional else logging.WARNING, "%s after %g s%s", line, self.match_report_s,
+                         " (an optional input)" if optional else "")
         if unmatched and len(unmatched) == len(self.bus.endpoints):
             self.log.warning("no peer seen after %g s: nothing matched on any topic (check the peers, the "
                              "interface, the domain id)", self.match_report_s)

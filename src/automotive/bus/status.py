@@ -70,8 +70,10 @@ class StatusListener(Listener):
     def on_publication_matched(self, writer: Any, status: Any) -> None:
         verb = "matched" if status.current_count_change > 0 else "unmatched"
         self._matched("writer", status)
-        self._report("publication_matched", status,
-                     f"writer {verb} a reader: {status.current_count} reader(s) now")
+        # A match is said once at INFO, by the reader's side (its writer is found); a writer's side says a reader
+        # lost, and its matches at DEBUG: the console shows each match once.
+        self._report("publication_matched", status, f"writer {verb} a reader: {status.current_count} reader(s) now",
+                     logging.INFO if status.current_count_change < 0 else logging.DEBUG)
 
     def on_subscription_matched(self, reader: Any, status: Any) -> None:
         verb = "matched" if status.current_count_change > 0 else "unmatched"
