@@ -81,3 +81,15 @@ def test_the_fast_paths_off_are_said_with_why() -> None:
     result = subprocess.run([*AUTOMOTIVE, "--version"], capture_output=True, text=True, timeout=60,
                             env={**__import__("os").environ, "AUTOMOTIVE_FAST_PATHS": "off"})
     assert "fast paths: off (AUTOMOTIVE_FAST_PATHS=off)" in result.stdout
+
+
+def test_ctrl_c_ends_a_benchmark_without_a_traceback(domain_id: int) -> None:
+    import signal
+
+    process = subprocess.Popen([*AUTOMOTIVE, "bench", "filter", "--domain", str(domain_id)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+    assert process.stdout is not None
+    assert process.stdout.readline()  # it runs
+    process.send_signal(signal.SIGINT)
+    _, errors = process.communicate(timeout=60)
+    assert process.returncode == 130 and "Traceback" not in errors, errors

@@ -99,7 +99,10 @@ def _unknown(prog: str, kind: str, name: str, commands: dict[str, Command]) -> i
 def _call(command: Command, argv: list[str], name: str) -> int:
     set_command_name(name)
     main = cast(Callable[[list[str]], int], importlib.import_module(command.module).main)
-    return main(argv)
+    try:
+        return main(argv)
+    except KeyboardInterrupt:  # Ctrl-C in a program that does not catch it (a benchmark): an end, not a traceback
+        return 130
 
 
 def _group(group: str, argv: list[str]) -> int:

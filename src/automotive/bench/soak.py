@@ -157,7 +157,9 @@ class Seen:
                     seen.alerts += 1
                 else:
                     seen.clears += 1
-            elif record.get("kind") == "source" and record.get("alive") is False:
+            # a writer that left (the system's own stop, collision avoidance ending first) is no loss of liveliness
+            elif (record.get("kind") == "source" and record.get("alive") is False
+                  and "liveliness" in str(record.get("reason", "liveliness"))):
                 seen.source_lost += 1
         return seen
 
