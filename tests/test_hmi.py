@@ -15,16 +15,15 @@ from pathlib import Path
 
 import pytest
 from dds_helpers import make_bus, wait_until
+from display_helpers import free_x_display, run_without_display
 
 from automotive import config
-from automotive.tools.children import program_command
 from automotive.types.Alerts import DriverAlerts
 
 CLEAR = dict(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False, backCollision=False,
              parkingCollision=False, driverAttention=False)
 ALERT_WRITER = Path(__file__).resolve().parent / "alert_writer.py"
 LEASE_S = 1  # the alerts' liveliness lease in the short QoS file (the shipped one: 60 s)
-DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")
 
 
 def alert(**flags: bool) -> DriverAlerts:
@@ -200,18 +199,6 @@ def test_window_tells_no_source_from_all_clear_and_from_a_lost_source(  # type: 
 
 # --- no window without a display ---------------------------------------------------------------------------------
 
-def free_x_display() -> str:
-    """A display number no X server serves here."""
-    number = next(n for n in range(900, 1000)
-                  if not Path(f"/tmp/.X11-unix/X{n}").exists() and not Path(f"/tmp/.X{n}-lock").exists())
-    return f":{number}"
-
-
-def run_hmi(domain_id: int, ui: str, **environment: str) -> subprocess.CompletedProcess[str]:
-    """The HMI with no display variable but ``environment``'s, run to its end (bounded)."""
-    env = {key: value for key, value in os.environ.items() if key not in DISPLAY_VARIABLES}
-    return subprocess.run(program_command("hmi", "--ui", ui, "--domain", str(domain_id)), env={**env, **environment},
-                          capture_output=True, text=True, timeout=60)
 
 
 @pytest.mark.parametrize("environment, reason", [
@@ -224,7 +211,7 @@ def test_window_without_a_display_is_refused_before_joining_the_bus(domain_id: i
                                                                     reason: str) -> None:
     if environment.get("DISPLAY") == "free":
         environment = {"DISPLAY": free_x_display()}
-    result = run_hmi(domain_id, "window", **environment)
+    result = run_without_display("hmi", "window", domain_id, **environment)
     assert result.returncode == 2, result
     assert re.fullmatch(rf"automotive-hmi: --ui window: {reason}\n", result.stderr), result.stderr
     assert result.stdout == "", "the HMI got as far as logging (its network line comes before the participant)"
@@ -232,7 +219,7 @@ def test_window_without_a_display_is_refused_before_joining_the_bus(domain_id: i
 
 def test_window_on_sdl_offscreen_driver_is_refused_even_with_a_display(domain_id: int,  # type: ignore[no-untyped-def]
                                                                        virtual_display: str) -> None:
-    result = run_hmi(domain_id, "window", DISPLAY=virtual_display, SDL_VIDEODRIVER="offscreen")
+    result = run_without_display("hmi", "window", domain_id, DISPLAY=virtual_display, SDL_VIDEODRIVER="offscreen")
     assert result.returncode == 2, result
     assert result.stderr == ("automotive-hmi: --ui window: SDL_VIDEODRIVER=offscreen chose SDL's 'offscreen' video "
                              "driver, which shows no window\n")

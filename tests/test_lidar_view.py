@@ -25,6 +25,7 @@ from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 from cyclonedds.util import duration
 from dds_helpers import take_samples, wait_until
+from display_helpers import free_x_display, run_without_display
 from lidar_helpers import circle
 from matplotlib.artist import Artist
 from matplotlib.colors import to_rgb
@@ -33,7 +34,6 @@ from PIL import Image, ImageGrab
 
 from automotive.bus.endpoints import Databus
 from automotive.sim.scene import BACKGROUND_RGB, GROUND_RGB, SHAPE_RGB, LidarScene, ScanGrid
-from automotive.tools.children import program_command
 from automotive.tools.cloudview import DEFAULT_SIZE, CloudFigure
 from automotive.tools.lidar_view import WINDOW_TITLE, CloudRate, fit_to_screen, status_line
 from automotive.types.automotive import ShapeType
@@ -297,25 +297,12 @@ def test_snapshot_shows_the_sphere_with_title_legend_and_axes(apps, domain_id: i
 
 # -- no window without a display -------------------------------------------------------------------------------------
 
-DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")
 NO_DISPLAY = "no display: neither DISPLAY nor WAYLAND_DISPLAY is set"
 # What SDL says of a display no X server serves: it falls back to a driver that draws into memory.
 UNREACHABLE = (r"SDL cannot open the display DISPLAY=':9\d\d' and fell back to SDL's '(offscreen|dummy)' video driver, "
                r"which shows no window")
 
 
-def free_x_display() -> str:
-    """A display number no X server serves here."""
-    number = next(n for n in range(900, 1000)
-                  if not Path(f"/tmp/.X11-unix/X{n}").exists() and not Path(f"/tmp/.X{n}-lock").exists())
-    return f":{number}"
-
-
-def run_view(domain_id: int, ui: str, **environment: str) -> subprocess.CompletedProcess[str]:
-    """The view with no display variable but ``environment``'s, run to its end (bounded)."""
-    env = {key: value for key, value in os.environ.items() if key not in DISPLAY_VARIABLES}
-    return subprocess.run(program_command("lidar_view", "--ui", ui, "--domain", str(domain_id)),
-                          env={**env, **environment}, capture_output=True, text=True, timeout=60)
 
 
 @pytest.mark.parametrize("environment, reason", [
@@ -326,7 +313,7 @@ def test_window_without_a_display_is_refused_before_joining_the_bus(domain_id: i
                                                                     reason: str) -> None:
     if environment.get("DISPLAY") == "free":
         environment = {"DISPLAY": free_x_display()}
-    result = run_view(domain_id, "window", **environment)
+    result = run_without_display("lidar_view", "window", domain_id, **environment)
     assert result.returncode == 2, result
     prog = re.escape(command_of("lidar_view"))
     assert re.fullmatch(rf"{prog}: --ui window: {reason}\n", result.stderr), result.stderr
@@ -335,7 +322,8 @@ def test_window_without_a_display_is_refused_before_joining_the_bus(domain_id: i
 
 def test_window_on_sdl_offscreen_driver_is_refused_even_with_a_display(domain_id: int,
                                                                        virtual_display: str) -> None:
-    result = run_view(domain_id, "window", DISPLAY=virtual_display, SDL_VIDEODRIVER="offscreen")
+    result = run_without_display("lidar_view", "window", domain_id, DISPLAY=virtual_display,
+                                 SDL_VIDEODRIVER="offscreen")
     assert result.returncode == 2, result
     assert result.stderr == (f"{command_of('lidar_view')}: --ui window: SDL_VIDEODRIVER=offscreen chose SDL's "
                              "'offscreen' video driver, which shows no window\n")

@@ -307,18 +307,22 @@ def test_every_key_a_shipped_file_mentions_is_declared(name: str) -> None:
 
 def test_every_application_reads_only_declared_keys(domain_id: int, tmp_path: Path) -> None:
     """Each application runs until ready(), whose safety net ends it (exit 2) at a key read but not declared."""
-    running = []
-    for name in APPLICATIONS:
-        # (the camera publishes once a second: it has a subscriber here)
-        extra = {"hmi": ["--ui", "console"], "camera_pub": ["-D", "config.pubInterval=1000"]}.get(name, [])
-        running.append(StatsChild.start(name, name, ["--domain", str(domain_id), "-D", "config.matchReport=0",
-                                                     *extra], tmp_path / f"{name}.jsonl"))
+    # (the camera publishes once a second: it has a subscriber here)
+    extra = {"hmi": ["--ui", "console"], "camera_pub": ["-D", "config.pubInterval=1000"]}
+    run_each_until_ready({name: extra.get(name, []) for name in APPLICATIONS}, domain_id, tmp_path)
+
+
+def run_each_until_ready(programs: dict[str, list[str]], domain_id: int, tmp_path: Path) -> None:
+    """Each program with its arguments until ready(), whose safety net would end it (exit 2) at a key read but not
+    declared; then stopped: each ends with 0."""
+    running = [StatsChild.start(name, name, [*args, "--domain", str(domain_id), "-D", "config.matchReport=0"],
+                                tmp_path / f"{name}.jsonl") for name, args in programs.items()]
     try:
         for child in running:
             child.wait_record("ready", timeout=TIMEOUT)
     finally:
         codes = {child.name: child.stop() for child in running}
-    assert codes == dict.fromkeys(APPLICATIONS, 0), [child.child.output for child in running]
+    assert codes == dict.fromkeys(programs, 0), [child.child.output for child in running]
     assert not any("does not declare" in child.child.output for child in running)
 
 
@@ -356,15 +360,7 @@ def test_every_tool_reads_only_declared_keys(domain_id: int, tmp_path: Path) -> 
         "lidar_view": ["--ui", "none"],
         "shapes": ["subscribe"],
     }
-    running = [StatsChild.start(name, name, [*needed[name], "--domain", str(domain_id), "-D", "config.matchReport=0"],
-                                tmp_path / f"{name}.jsonl") for name in TOOLS]
-    try:
-        for child in running:
-            child.wait_record("ready", timeout=TIMEOUT)
-    finally:
-        codes = {child.name: child.stop() for child in running}
-    assert codes == dict.fromkeys(TOOLS, 0), [child.child.output for child in running]
-    assert not any("does not declare" in child.child.output for child in running)
+    run_each_until_ready({name: needed[name] for name in TOOLS}, domain_id, tmp_path)
 
 
 SAFETY_NET = """
