@@ -91,6 +91,7 @@ PID_FILE = "launch.pid"
 # The applications' DEBUG lines (every sample: automotive.bus.console), which the console and the windows leave out
 # unless -v; the log files keep them.
 DEBUG_LINE = re.compile(DEBUG_LINE_PATTERN)
+DEBUG_LINE_GREP = "^[0-9:.]+ [^ ]+ debug: "  # the same, for grep -E in a window's shell
 # Lines that must stand out: an alert raised or cleared, a lost alert source.
 ALERT_LINE = re.compile(r"DRIVER ALERT|ALERT:|all clear|All clear|alert source (lost|LOST)|no alert source")
 SUMMARY_FILE = "launch-summary.txt"
@@ -322,8 +323,7 @@ def tail_command(log_path: Path, verbose: bool = False) -> list[str]:
     tail = ["tail", f"--pid={os.getpid()}", "-n", "+1", "-F", str(log_path)]
     if verbose:
         return tail
-    # grep -P: the same (Perl-style) pattern as the console's
-    return ["sh", "-c", f'{shlex.join(tail)} | grep --line-buffered -v -P "$0"', DEBUG_LINE_PATTERN]
+    return ["sh", "-c", f'{shlex.join(tail)} | grep --line-buffered -v -E "$0"', DEBUG_LINE_GREP]
 
 
 def find_terminal() -> str | None:
