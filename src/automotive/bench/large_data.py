@@ -40,7 +40,7 @@ from pathlib import Path
 from automotive.bus import stats
 from automotive.bus.cli import ArgumentParser, add_domain_option, output_file
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import Child, RunFailed, StatsChild, program_command, stop_all, work_folder
+from automotive.tools.children import Child, RunFailed, StatsChild, program_command, work_folder
 
 PROG = "automotive bench large-data"
 SIZES = {"64KiB": 64 * 1024, "1MiB": 1024 * 1024, "4MiB": 4 * 1024 * 1024}
@@ -125,7 +125,7 @@ def run_ours(size_name: str, duration: float, domain: int, env: dict[str, str], 
         _wait(sub, 60)  # camera_sub stops by itself once the publisher has left
         sub.stop(signal.SIGINT, timeout=30)
     except RunFailed as error:
-        return _failed(result, error)
+        return _failed(result, error, pub, sub)
     finally:
         _stop_left(pub, sub)  # on the way out of the run (Ctrl-C, SIGTERM), before their folder is removed
     # The windows' records carry the wall clock: measure_window's monotonic window, shifted onto it.
@@ -147,16 +147,20 @@ def run_ours(size_name: str, duration: float, domain: int, env: dict[str, str], 
     return result
 
 
-def _failed(result: Result, error: RunFailed) -> Result:
-    """A run that did not get to its measurement: the reason noted in its result (its programs are stopped by the
-    caller's finally)."""
+def _failed(result: Result, error: RunFailed, *procs: Child | None) -> Result:
+    """A run that did not get to its measurement: the reason noted in its result, its programs stopped."""
     result.note = str(error).splitlines()[0]
+    for proc in procs:
+        if proc is not None:
+            proc.stop(signal.SIGTERM)
     return result
 
 
 def _stop_left(*procs: Child | None) -> None:
-    """Stop what still runs (nothing, when the run went its way): on every way out of a run, a failure included."""
-    stop_all([proc for proc in procs if proc is not None])
+    """Stop what still runs (nothing, when the run went its way)."""
+    for proc in procs:
+        if proc is not None and proc.poll() is None:
+            proc.stop(signal.SIGTERM)
 
 
 def _wait(proc: Child, timeout: float) -> bool:
@@ -187,7 +191,7 @@ def run_ddsperf(size_name: str, duration: float, domain: int, env: dict[str, str
         _wait_line(sub, r"participant .*: gone", 30)
         sub.stop(signal.SIGINT, timeout=30)
     except RunFailed as error:
-        return _failed(result, error)
+        return _failed(result, error, pub, sub)
     finally:
         _stop_left(pub, sub)
     points, lost = [], 0
