@@ -65,6 +65,7 @@ from automotive.bus.cli import (
     add_domain_option,
     add_log_dir_option,
     output_file,
+    output_folder_problem,
 )
 from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
@@ -354,6 +355,8 @@ def main(argv: list[str] | None = None) -> int:
     add_domain_option(parser, 86, "DDS domain id")
     add_log_dir_option(parser, help="write every process's output and status records there (DIR/sN-oM/)")
     args = parser.parse_args(argv)
+    if args.log_dir is not None and (problem := output_folder_problem(args.log_dir, create=True)):
+        parser.error(f"--log-dir {args.log_dir}: {problem}")  # before the run, not after it
     try:
         sensor_counts = [int(value) for value in args.sensors.split(",")]
         object_counts = [int(value) for value in args.objects.split(",")]

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from automotive import config
-from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
 from automotive.tools.children import Record, StatsChild, stop_all, work_folder
@@ -242,6 +242,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for each step (default 60)")
     add_log_dir_option(parser, help="write every process's output (.log) and status records (.jsonl) there")
     args = parser.parse_args(argv)
+    if args.log_dir is not None and (problem := output_folder_problem(args.log_dir, create=True)):
+        parser.error(f"--log-dir {args.log_dir}: {problem}")  # before the run, not after it
     if args.failovers < 1:
         print(f"{PROG}: --failovers {args.failovers}: expected 1 or more", file=sys.stderr)
         return 2

@@ -34,7 +34,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.network import NetworkConfig
 from automotive.tools.children import StatsChild, stop_all, work_folder
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE
@@ -168,6 +168,8 @@ def main(argv: list[str] | None = None) -> int:
     add_log_dir_option(parser, help="write every process's output there (DIR/nN/NAME.log with monotonic time stamps, "
                                     "NAME.jsonl: its status records)")
     args = parser.parse_args(argv)
+    if args.log_dir is not None and (problem := output_folder_problem(args.log_dir, create=True)):
+        parser.error(f"--log-dir {args.log_dir}: {problem}")  # before the run, not after it
     try:
         sizes = [int(size) for size in args.sizes.split(",")]
     except ValueError:

@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from automotive.bus import stats
-from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
+from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
 from automotive.tools import netlab
@@ -323,6 +323,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--probe", type=int, default=None, help=argparse.SUPPRESS)  # the probe child: its domain
     parser.add_argument("--stats", type=Path, default=None, help=argparse.SUPPRESS)  # the probe child's records
     args = parser.parse_args(argv)
+    if args.log_dir is not None and (problem := output_folder_problem(args.log_dir, create=True)):
+        parser.error(f"--log-dir {args.log_dir}: {problem}")  # before the run, not after it
     if args.seconds <= 0:
         parser.error(f"--seconds {args.seconds:g}: expected a positive number")
     if args.probe is not None:

@@ -195,14 +195,8 @@ def add_override_option(parser: argparse.ArgumentParser, metavar: str = "KEY=VAL
 
 
 def add_log_dir_option(parser: argparse.ArgumentParser, default: Path | None = None,
-                       help: str = "write every process's output there", written: bool = True) -> None:
-    """``--log-dir``; ``written``: the program writes there, so the folder (the default too: argparse converts a
-    default given as a string) is checked as the command line is read (:func:`output_folder`), before anything
-    starts."""
-    if not written:
-        parser.add_argument("--log-dir", type=Path, default=default, help=help)
-        return
-    parser.add_argument("--log-dir", type=output_folder, default=None if default is None else str(default), help=help)
+                       help: str = "write every process's output there") -> None:
+    parser.add_argument("--log-dir", type=Path, default=default, help=help)
 
 
 def add_stats_option(parser: argparse.ArgumentParser) -> None:

@@ -731,7 +731,7 @@ def app_pids(info: dict[str, object]) -> dict[str, int]:
 
 def stop_command(argv: list[str]) -> int:
     parser = ArgumentParser(prog=f"{PROG} stop", description="Stop the running launcher.")
-    add_log_dir_option(parser, DEFAULT_LOG_DIR, "the launcher's --log-dir", written=False)
+    add_log_dir_option(parser, DEFAULT_LOG_DIR, "the launcher's --log-dir")
     parser.add_argument("--timeout", type=float, default=None,
                         help=f"how long to wait for the launcher (default: its stop timeout + {STOP_MARGIN_S:g} s)")
     args = parser.parse_args(argv)
@@ -777,7 +777,7 @@ def stop_command(argv: list[str]) -> int:
 
 def status_command(argv: list[str]) -> int:
     parser = ArgumentParser(prog=f"{PROG} status", description="What the running launcher runs.")
-    add_log_dir_option(parser, DEFAULT_LOG_DIR, "the launcher's --log-dir", written=False)
+    add_log_dir_option(parser, DEFAULT_LOG_DIR, "the launcher's --log-dir")
     args = parser.parse_args(argv)
     info = read_pid_file(args.log_dir)
     launcher = launcher_running(info) if info is not None else None
@@ -877,6 +877,9 @@ def _main(argv: list[str]) -> int:
     args = build_parser().parse_intermixed_args(argv)
     if args.list:
         return printing(list_command)
+    problem = output_folder_problem(args.log_dir, create=True)  # before anything starts: a read-only folder too
+    if problem:
+        raise LaunchError(f"--log-dir {args.log_dir}: {problem}")
     specs, missing = plan(args)
     if not specs:
         reasons = "; ".join(f"{name}: {reason}" for name, reason in missing)
