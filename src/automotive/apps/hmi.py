@@ -349,7 +349,7 @@ def body(app: Application, ui: AlertUI, why_console: str) -> None:
 def main(argv: list[str] | None = None) -> int:
     description = __doc__ or ""
     # The alert box is opened before the application exists: a window that cannot be shown is bad input, refused
-    # before the HMI creates its DDS participant.
+    # before the HMI creates its DDS participant. (The command line is parsed again by run: the same parser.)
     parser = build_parser(NAME, description, add_arguments)
     args = parser.parse_args(argv)
     try:
@@ -358,8 +358,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{parser.prog}: --ui window: {reason}", file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
-        return run(NAME, description, lambda app: body(app, ui, why_console), argv, add_arguments, keys=PROPERTY_KEYS,
-                   parsed=(parser, args))
+        return run(NAME, description, lambda app: body(app, ui, why_console), argv, add_arguments, keys=PROPERTY_KEYS)
     finally:
         ui.close()
 

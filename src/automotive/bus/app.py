@@ -354,20 +354,14 @@ def load_properties(name: str, args: argparse.Namespace) -> Properties:
 
 def run(name: str, description: str, body: Callable[[Application], None], argv: Sequence[str] | None = None,
         add_arguments: ArgumentAdder | None = None, command: str | None = None,
-        keys: PropertyKeys | None = None,
-        parsed: tuple[argparse.ArgumentParser, argparse.Namespace] | None = None) -> int:
+        keys: PropertyKeys | None = None) -> int:
     """Parse the command line, build the application, run ``body`` and shut down; return the exit code.
 
     ``command``: how a tool run through ``automotive`` is named (``automotive record``); an application's is its
     console script (``automotive-vision``). ``keys``: the property keys the program reads beyond RUNTIME_KEYS; with
-    them, a key of the properties or of -D that it does not know is refused before anything starts. ``parsed``: the
-    parser (:func:`build_parser`) and its arguments, for a program that looked at them before (to open its window
-    before it joins the bus); ``argv`` is then not parsed again."""
-    if parsed is None:
-        parser = build_parser(name, description, add_arguments, command)
-        args = parser.parse_args(argv)
-    else:
-        parser, args = parsed
+    them, a key of the properties or of -D that it does not know is refused before anything starts."""
+    parser = build_parser(name, description, add_arguments, command)
+    args = parser.parse_args(argv)
     app: Application | None = None
     stdout_gone = False
 

@@ -270,7 +270,7 @@ class SnapshotTimeout(ConfigError):
 def main(argv: list[str] | None = None) -> int:
     description = __doc__ or ""
     # The display is opened before the view exists: a window that cannot be shown is bad input, refused before the
-    # view creates its DDS participant.
+    # view creates its DDS participant. (The command line is parsed again by run: the same parser.)
     parser = build_parser(NAME, description, add_arguments, COMMAND)
     args = parser.parse_args(argv)
     try:
@@ -280,7 +280,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     try:
         return run(NAME, description, lambda app: body(app, display), argv, add_arguments, command=COMMAND,
-                   keys=PROPERTY_KEYS, parsed=(parser, args))
+                   keys=PROPERTY_KEYS)
     finally:
         if display.pygame is not None:  # the window's close did it, unless the view ended before its window
             display.pygame.display.quit()
