@@ -24,7 +24,6 @@ one Python object per element; their float fields are checked in bulk (automotiv
 from __future__ import annotations
 
 import dataclasses
-import functools
 import struct
 from collections.abc import Callable
 from typing import Any, TypeVar
@@ -132,12 +131,6 @@ class CheckedReader(DataReader[T]):
         self._views_decoder: Decoder | None = None  # use_views()
         super().__init__(*args, **kwargs)
 
-    @functools.cached_property
-    def topic_name(self) -> str:
-        # Asked once: Cyclone Python's Topic.name makes a ctypes buffer and a cast (a reference cycle) each time,
-        # garbage on every take of a hot path.
-        return self.topic.get_name()
-
     def use_views(self) -> CheckedReader[T]:
         """Give this reader's samples with their sequences of fixed-size structs as read-only numpy structured
         arrays (``codec.element_dtype(member)``); the type must have a generated codec with such members."""
@@ -163,7 +156,7 @@ class CheckedReader(DataReader[T]):
                 samples += batch
         else:
             samples = self._checked(fetched)
-        console.traffic.count_in(self.topic_name, sum(not isinstance(sample, InvalidSample) for sample in samples))
+        console.traffic.count_in(self.topic.name, sum(not isinstance(sample, InvalidSample) for sample in samples))
         return samples
 
     def read(self, N: int = 1, condition: Any = None, instance_handle: int | None = None) -> list[Any]:

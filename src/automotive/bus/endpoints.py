@@ -8,7 +8,6 @@ application only samples that decode and pass their type's checks, and reports t
 
 from __future__ import annotations
 
-import functools
 import logging
 from typing import Any, TypeVar
 
@@ -41,13 +40,7 @@ class CheckedWriter(DataWriter[T]):
         # numpy arrays of fixed-size structs are written by the generated codecs; made dataclasses for Cyclone's
         # serializer when the codecs are not plugged in (the version gate is closed)
         super().write(codec_hook.writable(sample), timestamp)
-        console.traffic.count_out(self.topic_name)
-
-    @functools.cached_property
-    def topic_name(self) -> str:
-        # Asked once: Cyclone Python's Topic.name makes a ctypes buffer and a cast (a reference cycle) each time,
-        # garbage on every sample of a hot path.
-        return self.topic.get_name()
+        console.traffic.count_out(self.topic.name)
 
 
 class Databus:
