@@ -9,8 +9,11 @@ application only samples that decode and pass their type's checks, and reports t
 from __future__ import annotations
 
 import logging
+import socket
+from dataclasses import replace
 from typing import Any, TypeVar
 
+import psutil
 from cyclonedds.core import DDSException
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter, Publisher
@@ -23,11 +26,12 @@ from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.contentfilter import FilteredReader, Predicate
 from automotive.bus.errors import ConfigError, refused_as_config_error
-from automotive.bus.network import NetworkConfig, user_uri
+from automotive.bus.network import NetworkConfig, PeerPlan, user_uri
+from automotive.bus.ports import domain_base, highest_port
 from automotive.bus.qos import QosProfiles
 from automotive.bus.stats import Stats
 from automotive.bus.status import EventHook, StatusListener
-from automotive.cyclone import bounds, codec_hook
+from automotive.cyclone import bounds, codec_hook, hostonly
 
 T = TypeVar("T")
 
@@ -41,6 +45,38 @@ class CheckedWriter(DataWriter[T]):
         # serializer when the codecs are not plugged in (the version gate is closed)
         super().write(codec_hook.writable(sample), timestamp)
         console.traffic.count_out(self.topic.name)
+
+
+def open_domain(domain_id: int, network: NetworkConfig, plan: PeerPlan, log: logging.Logger) -> Domain:
+    """The Cyclone domain with the applications' network configuration. In loopback mode with the host's LAN
+    interface, its sockets are made deaf to other hosts (automotive.cyclone.hostonly) before any participant joins it;
+    if that fails, the domain is opened again on 127.0.0.1 only, with a warning."""
+    lan_interface = "" if network.network_from_user else network.lan_interface()
+    if lan_interface:
+        network = replace(network, host_interface=lan_interface)
+    before = hostonly.open_sockets() if lan_interface else {}
+    domain = _domain(domain_id, network, plan)
+    if not lan_interface:
+        return domain
+    addresses = tuple(address.address for address in psutil.net_if_addrs().get(lan_interface, [])
+                      if address.family == socket.AF_INET) + ("127.0.0.1",)
+    try:
+        filtered = hostonly.restrict(before, addresses, range(domain_base(domain_id), highest_port(domain_id) + 1))
+        if not filtered.covers(domain_base(domain_id)):
+            raise hostonly.FilterError(0, "its discovery sockets were not found")
+    except OSError as error:
+        log.warning("network: Cyclone DDS tools on their defaults will not see this application: %s; staying on "
+                    "127.0.0.1 only", error.strerror or error)
+        del domain
+        return _domain(domain_id, replace(network, host_interface=""), plan)
+    return domain
+
+
+def _domain(domain_id: int, network: NetworkConfig, plan: PeerPlan) -> Domain:
+    try:
+        return Domain(domain_id, network.cyclone_xml(plan))
+    except DDSException as error:
+        raise ConfigError(f"network {network.describe()}: Cyclone refused the configuration ({error})") from None
 
 
 class Databus:
@@ -63,11 +99,7 @@ class Databus:
             plan = network.peer_plan()
             for peer, reason in plan.unusable:
                 log.warning("network: peer %s left out: %s", peer, reason)
-            try:
-                self.domain = Domain(domain_id, network.cyclone_xml(plan))
-            except DDSException as error:
-                raise ConfigError(
-                    f"network {network.describe()}: Cyclone refused the configuration ({error})") from None
+            self.domain = open_domain(domain_id, network, plan, log)
         try:
             self.participant = DomainParticipant(domain_id, qos=Qos(Policy.EntityName(name)))
         except DDSException as error:

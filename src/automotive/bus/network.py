@@ -24,6 +24,28 @@ then the user's (:meth:`NetworkConfig.layered`, from :func:`read_user_config`):
 Participant indexes stop at MAX_PARTICIPANT_INDEX (config.maxParticipants at most MAX_PARTICIPANTS), so that no
 index's port reaches another domain's (automotive.bus.ports).
 
+Cyclone's default tools on the same host: a Cyclone participant on Cyclone's defaults (the ``cyclonedds`` CLI, ROS 2
+with rmw_cyclonedds_cpp, any Cyclone application) uses the host's best LAN interface only: it announces itself by
+multicast there (239.255.0.1, the domain's discovery port), listens for unicast on ephemeral ports no index probe
+reaches, and drops a participant announcement that arrives on another interface (127.0.0.1 is the loopback
+device's). So loopback mode also uses that interface (the one Cyclone would choose, found by
+:func:`host_interface`), to receive and to reach the host's own address only:
+
+- Every participant listens on the domain's discovery multicast port without joining the group (no IGMP report
+  leaves the host). The kernel hands it the multicast a default tool on this host sends and loops back to its own
+  host, because that tool joined the group on that interface; the participant answers it by unicast to the tool's
+  own (LAN) address, which the kernel delivers inside the host, on the tool's interface: the tool accepts it. Either
+  join order works: a tool started later is heard at its first announcement, a tool started earlier at its next
+  (every 18 s on Cyclone's defaults).
+- The interface is used for unicast only: the participants never send multicast on it (their multicast goes to the
+  loopback device, to the other participants of the host), so nothing goes on the wire for them.
+- The domain's sockets are made deaf to every other host (automotive.cyclone.hostonly, a socket filter): another
+  host's participant, even one that probes this host's address or whose multicast a default tool here lets in, is
+  never heard, so it is never answered. Where that filter cannot be set (not Linux), loopback mode stays on 127.0.0.1
+  only, as Cyclone's default tools then cannot find it.
+- Cyclone is told not to ask on which interface a datagram arrived (ExtendedPacketInfo), or it would drop the default
+  tools' multicast, which arrives on an interface it uses for unicast only.
+
 Late joiners: a tool of another DDS implementation (RTI Admin Console, rtiddsspy, Shapes Demo, RViz2 on Fast DDS)
 started on a host where the system already runs announces itself only to the few participant indexes it probes by
 default (RTI 0-4, Fast DDS 0-3), so the participants with higher indexes must find it themselves. In loopback and
@@ -53,8 +75,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
+import psutil
+
 from automotive.bus.errors import ConfigError
 from automotive.bus.ports import MAX_PARTICIPANT_INDEX, MAX_PARTICIPANTS
+from automotive.cyclone import hostonly
 
 LOOPBACK = "loopback"
 LAN = "lan"
@@ -163,6 +188,9 @@ class NetworkConfig:
     # False for Cyclone's C tools of Debian (ddsperf 0.10.2), which stop on the loopback peer's PruneDelay attribute
     # (unknown before 0.11) where the Python runtime's Cyclone 11 needs it to probe for late joiners forever.
     prune_delay: bool = True
+    # Loopback mode: the LAN interface whose own address the participants also use, so that Cyclone's default tools
+    # on this host find them (see the module's docstring); None: this host's (host_interface()), "": none.
+    host_interface: str | None = None
     # Samples kept of a running reliable writer just discovered, until its next heartbeat says where its history
     # starts (Cyclone's Internal/PrimaryReorderMaxSamples and, per reader that joined it, SecondaryReorderMaxSamples:
     # 128 by default; the rest is dropped without a trace). 0: Cyclone's defaults.
@@ -236,10 +264,21 @@ class NetworkConfig:
                          ("Internal/ExtendedPacketInfo", _text("ExtendedPacketInfo", "false"))]
         elif self.mode == LOOPBACK:
             prune = f' PruneDelay="{PROBE_FOREVER}"' if self.prune_delay else ""
-            elements += [*_interfaces_element("lo"), ("General/AllowMulticast", _text("AllowMulticast", "false")),
-                         ("Discovery/Peers", f'<Peers><Peer address="{LOCALHOST}"{prune}/></Peers>'),
+            host = self.lan_interface()
+            # With a LAN interface: multicast discovery on the loopback device only (its socket also hears the
+            # default tools' looped-back multicast), unicast only on the LAN interface, no multicast group joined.
+            interfaces = [("General/Interfaces", '<Interfaces><NetworkInterface name="lo" multicast="true" '
+                           f'allow_multicast="spdp"/><NetworkInterface name={quoteattr(host)} '
+                           'allow_multicast="false"/></Interfaces>')] if host else _interfaces_element("lo")
+            elements += [*interfaces, ("General/AllowMulticast", _text("AllowMulticast", "false"))]
+            if host:
+                elements.append(("General/MulticastRecvNetworkInterfaceAddresses",
+                                 _text("MulticastRecvNetworkInterfaceAddresses", "none")))
+            elements += [("Discovery/Peers", f'<Peers><Peer address="{LOCALHOST}"{prune}/></Peers>'),
                          *self._participant_index_elements(),
                          ("Discovery/SPDPInterval", _text("SPDPInterval", LOOPBACK_ANNOUNCE_INTERVAL))]
+            if host:
+                elements.append(("Internal/ExtendedPacketInfo", _text("ExtendedPacketInfo", "false")))
         else:
             elements += [*_interfaces_element(self.interface),
                          ("General/AllowMulticast", _text("AllowMulticast", "true"))]
@@ -258,6 +297,14 @@ class NetworkConfig:
                           f'<SocketSendBufferSize min="default" max="{self.socket_buffer}"/>')]
         elements.append(("Sizing/ReceiveBufferSize", _text("ReceiveBufferSize", RECEIVE_BUFFER_SIZE)))
         return elements
+
+    def lan_interface(self) -> str:
+        """Loopback mode: the LAN interface the participants also use for unicast on this host ("" for none)."""
+        if self.mode != LOOPBACK:
+            return ""
+        if self.host_interface is not None:
+            return self.host_interface
+        return host_interface() if hostonly.available() else ""
 
     def _participant_index_elements(self) -> list[tuple[str, str]]:
         return [("Discovery/ParticipantIndex", _text("ParticipantIndex", "auto")),
@@ -349,6 +396,25 @@ class UserConfig:
                     parent.remove(element)
             texts.append(ET.tostring(fragment, encoding="unicode"))
         return ",".join(texts)
+
+
+def host_interface() -> str:
+    """The interface a Cyclone participant on its defaults uses on this host ("" if the host has only loopback): as
+    Cyclone chooses, the first one that is up and has an IPv4 address, preferring one that can multicast, then one
+    that is not point-to-point."""
+    stats = psutil.net_if_stats()
+    best, best_quality = "", 0
+    for name, addresses in psutil.net_if_addrs().items():
+        status = stats.get(name)
+        if status is None or not status.isup or not any(address.family == socket.AF_INET for address in addresses):
+            continue
+        flags = set(status.flags.split(","))
+        if "loopback" in flags:
+            continue
+        quality = 3 if "multicast" in flags else 1 if "pointopoint" in flags else 2
+        if quality > best_quality:
+            best, best_quality = name, quality
+    return best
 
 
 def user_uri() -> str | None:
