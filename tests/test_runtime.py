@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -68,10 +69,18 @@ def test_writer_and_reader_from_profiles_exchange_data(domain_id: int) -> None:
 
 
 def test_network_configurations() -> None:
-    loopback = NetworkConfig.from_settings().cyclone_xml()
+    loopback = replace(NetworkConfig.from_settings(), host_interface="").cyclone_xml()
     assert '<NetworkInterface name="lo"/>' in loopback and "<AllowMulticast>false" in loopback
     # every index of this host probed as long as the application runs, every 2 s: a tool started later is found
     assert '<Peer address="127.0.0.1" PruneDelay="inf"/>' in loopback and "<SPDPInterval>2s<" in loopback
+    # with the host's LAN interface, for Cyclone's default tools on the host: multicast on lo only, unicast on the
+    # LAN interface, no group joined, and the tools' multicast (arriving on an interface used for unicast) kept
+    on_lan = replace(NetworkConfig.from_settings(), host_interface="eth7").cyclone_xml()
+    assert ('<Interfaces><NetworkInterface name="lo" multicast="true" allow_multicast="spdp"/>'
+            '<NetworkInterface name="eth7" allow_multicast="false"/></Interfaces>') in on_lan
+    assert "<AllowMulticast>false" in on_lan and "<MulticastRecvNetworkInterfaceAddresses>none<" in on_lan
+    assert "<ExtendedPacketInfo>false</ExtendedPacketInfo>" in on_lan and "<MulticastTimeToLive>" not in on_lan
+    assert '<Peer address="127.0.0.1" PruneDelay="inf"/>' in on_lan
 
     lan = NetworkConfig.from_settings(interface="eth1").cyclone_xml()
     assert '<NetworkInterface name="eth1"/>' in lan and "<AllowMulticast>true" in lan and "<Peer" not in lan
@@ -108,7 +117,7 @@ def test_cyclone_c_tools_accept_their_loopback_configuration(domain_id: int) -> 
     runtime's loopback peer carries (unknown before Cyclone 0.11); the configuration made for it runs."""
     ddsperf = shutil.which("ddsperf")
     assert ddsperf is not None, "ddsperf (Debian's cyclonedds-tools, installed by scripts/setup) is not on PATH"
-    xml = NetworkConfig(large_data=True, prune_delay=False).cyclone_xml()
+    xml = NetworkConfig(large_data=True, cyclone_0_10=True).cyclone_xml()
     assert '<Peer address="127.0.0.1"/>' in xml
     result = subprocess.run([ddsperf, "-i", str(domain_id), "-D", "0.2", "sub"], capture_output=True, text=True,
                             env=dict(os.environ, CYCLONEDDS_URI=xml), timeout=30)

@@ -52,10 +52,10 @@ TOOLS = ("ours", "ours-shm", "ddsperf")
 # Loopback only, no multicast; every participant on this host is found through 127.0.0.1.
 def cyclone_uri(defaults: bool, buffer: str, fragment: int, c_tool: bool = False) -> str:
     """The same loopback configuration for both tools: the runtime's own, with or without its large-data settings
-    (for the C tool without the one attribute its older Cyclone does not know; two processes find each other at
-    once, so probing forever does not matter here)."""
+    (for the C tool without what its older Cyclone does not know; two processes find each other at once, so
+    probing forever does not matter here)."""
     return NetworkConfig(large_data=not defaults, fragment_size=fragment, socket_buffer=buffer,
-                         prune_delay=not c_tool).cyclone_xml()
+                         cyclone_0_10=c_tool).cyclone_xml()
 
 
 def _wait_line(proc: Child, pattern: str, timeout: float) -> None:

@@ -185,9 +185,10 @@ class NetworkConfig:
     large_data: bool = False
     fragment_size: int = LARGE_DATA_FRAGMENT_SIZE
     socket_buffer: str = LARGE_DATA_SOCKET_BUFFER
-    # False for Cyclone's C tools of Debian (ddsperf 0.10.2), which stop on the loopback peer's PruneDelay attribute
-    # (unknown before 0.11) where the Python runtime's Cyclone 11 needs it to probe for late joiners forever.
-    prune_delay: bool = True
+    # True for Cyclone's C tools of Debian (ddsperf 0.10.2), which stop on what Cyclone 0.10 does not know: the
+    # loopback peer's PruneDelay attribute (the Python runtime's Cyclone 11 needs it to probe for late joiners
+    # forever) and ExtendedPacketInfo; so no LAN interface either (see host_interface).
+    cyclone_0_10: bool = False
     # Loopback mode: the LAN interface whose own address the participants also use, so that Cyclone's default tools
     # on this host find them (see the module's docstring); None: this host's (host_interface()), "": none.
     host_interface: str | None = None
@@ -263,7 +264,7 @@ class NetworkConfig:
                          # RTI's answers through 127.0.0.1.
                          ("Internal/ExtendedPacketInfo", _text("ExtendedPacketInfo", "false"))]
         elif self.mode == LOOPBACK:
-            prune = f' PruneDelay="{PROBE_FOREVER}"' if self.prune_delay else ""
+            prune = "" if self.cyclone_0_10 else f' PruneDelay="{PROBE_FOREVER}"'
             host = self.lan_interface()
             # With a LAN interface: multicast discovery on the loopback device only (its socket also hears the
             # default tools' looped-back multicast), unicast only on the LAN interface, no multicast group joined.
@@ -300,7 +301,7 @@ class NetworkConfig:
 
     def lan_interface(self) -> str:
         """Loopback mode: the LAN interface the participants also use for unicast on this host ("" for none)."""
-        if self.mode != LOOPBACK:
+        if self.mode != LOOPBACK or self.cyclone_0_10:
             return ""
         if self.host_interface is not None:
             return self.host_interface
