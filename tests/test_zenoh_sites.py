@@ -73,10 +73,12 @@ class Sites:
     b_connects_to: str = f"{ADDRESS_A}:{PORT}"  # A's router, or the delaying relay in front of it
 
     def start(self, site: Site, label: str, command: list[str]) -> CommandProcess:
-        return self.runner.start_command(f"{label}@{site.name}", site.net.exec(*command))
+        # The shipped single-host default inside the site's namespace (not the tests' CYCLONEDDS_URI, made for the
+        # machine's own interfaces): DDS never crosses the veth, so the bridges are the only way between the sites.
+        return self.runner.start_command(f"{label}@{site.name}", site.net.exec("env", "-u", "CYCLONEDDS_URI", *command))
 
     def app(self, site: Site, name: str, *args: str) -> CommandProcess:
-        """An application on a site's databus (loopback inside the namespace: CYCLONEDDS_URI from conftest)."""
+        """An application on a site's databus (the single-host default inside the namespace)."""
         return self.start(site, name, program_command(name, "--domain", str(self.domain_id), *args))
 
     def bridge(self, site: Site, *args: str) -> CommandProcess:
