@@ -113,7 +113,7 @@ def test_our_shapes_publisher_reaches_a_shapes_demo_reader(apps, domain_id: int)
         apps.start("shapes", "publish", "--color", "PURPLE", "--shapesize", "45", "--domain", str(domain_id))
         peer.wait_for_writers("Circle")
         samples = peer.take_until("Circle", 5, accept=lambda s: s["color"] == "PURPLE")
-    assert len(samples) == 5
+    assert len(samples) >= 5  # the last take may bring more than the fifth
     assert all(s["shapesize"] == 45 and 23 <= s["x"] <= 217 and 23 <= s["y"] <= 247 for s in samples)
     assert len({(s["x"], s["y"]) for s in samples}) > 1  # it moves
 
