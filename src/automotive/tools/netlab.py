@@ -104,14 +104,14 @@ class Namespace:
 
 
 def veth(one: Namespace, one_device: str, one_address: str, other: Namespace, other_device: str,
-         other_address: str, prefix_length: int = 24) -> None:
+         other_address: str, prefix_length: int = 24, multicast: bool = False) -> None:
     """A veth pair made straight into two namespaces (nothing of it ever appears on the host), addressed, without
-    multicast, up and running."""
+    multicast unless asked, up and running."""
     run("ip", "link", "add", one_device, "netns", one.name, "type", "veth", "peer", "name", other_device, "netns",
         other.name)
     for namespace, device, address in ((one, one_device, one_address), (other, other_device, other_address)):
         run("ip", "-n", namespace.name, "addr", "add", f"{address}/{prefix_length}", "dev", device)
-        run("ip", "-n", namespace.name, "link", "set", device, "multicast", "off", "up")
+        run("ip", "-n", namespace.name, "link", "set", device, "multicast", "on" if multicast else "off", "up")
     for namespace, device in ((one, one_device), (other, other_device)):
         namespace.wait_link_running(device)
 
