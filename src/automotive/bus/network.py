@@ -36,7 +36,7 @@ device's). So loopback mode also uses that interface (the one Cyclone would choo
   host, because that tool joined the group on that interface; the participant answers it by unicast to the tool's
   own (LAN) address, which the kernel delivers inside the host, on the tool's interface: the tool accepts it. Either
   join order works: a tool started later is heard at its first announcement, a tool started earlier at its next
-  (every 18 s on Cyclone's defaults).
+  (every 8 s on Cyclone's defaults).
 - The interface is used for unicast only: the participants never send multicast on it (their multicast goes to the
   loopback device, to the other participants of the host), so nothing goes on the wire for them.
 - The domain's sockets are made deaf to every other host (automotive.cyclone.hostonly, a socket filter): another
