@@ -422,11 +422,24 @@ FASTDDS_LIMITS = {
 FASTDDS_PAIRS = [(case, direction) for case in FASTDDS_CASES for direction in (OURS_TO_FASTDDS, FASTDDS_TO_OURS)
                  if (case.name, direction) not in FASTDDS_LIMITS]
 
+# Ours and Cyclone's application (tests/cyclone_shape_peer.py), both on their defaults in one host, as the suite's
+# runner starts them: no option beyond the case's, the reference's default QoS (RELIABLE, VOLATILE, XCDR1). What is
+# tested is that they meet whichever starts first. One that starts after a participant on Cyclone's defaults hears
+# it at its next periodic announcement: every 8 s (Cyclone's default lease of 10 s less 2 s), well within
+# EVENT_TIMEOUT_S and the suite's own 15 s.
+CYCLONE_DEFAULTS_CASES = [
+    _case("Defaults_PublisherFirst", [P, S], BOTH_OK),
+    _case("Defaults_SubscriberFirst", [S, P], BOTH_OK),
+]
+OURS_TO_CYCLONE, CYCLONE_TO_OURS = "ours-to-cyclone", "cyclone-to-ours"
+CYCLONE_DEFAULTS_PAIRS = [(case, direction) for case in CYCLONE_DEFAULTS_CASES
+                          for direction in (OURS_TO_CYCLONE, CYCLONE_TO_OURS)]
+
 
 # -- the runner -----------------------------------------------------------------------------------------------------
 @dataclass
 class Implementation:
-    """How to start one side's shape application: ours, or the Fast DDS peer."""
+    """How to start one side's shape application: ours, the Fast DDS peer, or the stand-in for Cyclone's."""
 
     name: str
     command: list[str]

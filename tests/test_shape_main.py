@@ -1,6 +1,8 @@
 """The shape_main-compatible command (automotive.tools.shape_main, automotive shape-main) through the OMG DDS
 interoperability suite's QoS groups: against itself, and with the Fast DDS shape peer (tests/fastdds/shape_peer.cpp)
-on either side.
+on either side; and, both on their defaults, with a stand-in for Cyclone's own shape application
+(tests/cyclone_shape_peer.py) in a host with a LAN interface, as the suite's runner meets another vendor's
+application on one machine.
 
 Each case (tests/shape_cases.py) runs its publishers and subscribers as processes in a network namespace of its own,
 created and deleted by the test: the suite's cases use DDS domains 0 and 1, which other tests must not see. Needs
@@ -25,7 +27,20 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
 from dds_helpers import wait_until
 from fastdds_peer import shape_peer
-from shape_cases import FASTDDS_PAIRS, OURS_TO_FASTDDS, SELF_CASES, Case, CaseRun, Implementation, describe
+from lan_host import READY as SNIFFING
+from lan_host import LanHost
+from shape_cases import (
+    CYCLONE_DEFAULTS_PAIRS,
+    EVENT_TIMEOUT_S,
+    FASTDDS_PAIRS,
+    OURS_TO_CYCLONE,
+    OURS_TO_FASTDDS,
+    SELF_CASES,
+    Case,
+    CaseRun,
+    Implementation,
+    describe,
+)
 from test_bad_input import assert_one_line_error
 from test_network_config import LOOPBACK_AND_PEER, effective, tracing
 
@@ -39,6 +54,11 @@ from automotive.wire.rawsample import RawWriter
 
 ROOT = Path(__file__).resolve().parent.parent
 OURS = Implementation("ours", [sys.executable, "-m", "automotive.tools.shape_main"])
+# Cyclone's application on Cyclone's defaults: no CYCLONEDDS_URI at all (the tests set one for every process).
+CYCLONE_DEFAULTS = Implementation("cyclone-defaults", ["env", "-u", "CYCLONEDDS_URI", sys.executable,
+                                                       str(ROOT / "tests" / "cyclone_shape_peer.py")])
+# Cyclone's defaults announce the participant by multicast to this group on the host's LAN interface.
+DEFAULT_SPDP = r" > 239\.255\.0\.1:7400 udp "
 _names = itertools.count()
 
 
@@ -82,6 +102,36 @@ def test_with_fastdds(case: Case, direction: str, namespace: str) -> None:
     fastdds = Implementation("fastdds", [str(shape_peer())])
     publisher, subscriber = (OURS, fastdds) if direction == OURS_TO_FASTDDS else (fastdds, OURS)
     run_case(case, namespace, publisher, subscriber, "1")  # Fast DDS 2.9 reads and writes XCDR1 only
+
+
+@pytest.fixture
+def lan_host() -> Iterator[LanHost]:
+    """A host as the suite's runner runs on: loopback and a multicast-capable eth0 on a LAN (tests/lan_host.py), where
+    Cyclone's defaults use eth0; deleted after the test."""
+    reason = netlab.unavailable()
+    if reason is not None:
+        pytest.skip(reason)
+    with LanHost("shape") as created:
+        yield created
+
+
+@pytest.mark.parametrize("case,direction", CYCLONE_DEFAULTS_PAIRS,
+                         ids=[f"{case.name}-{direction}" for case, direction in CYCLONE_DEFAULTS_PAIRS])
+def test_on_its_defaults_it_meets_cyclones_application_on_its_defaults_in_one_host(case: Case, direction: str,
+                                                                                 lan_host: LanHost) -> None:
+    """The suite's runner with no flags: ours on its single-host default (no CYCLONEDDS_URI, no network option) and
+    Cyclone's application on Cyclone's defaults (eth0, multicast) match, either publishing, whichever starts first
+    (ours, started after Cyclone's, hears it at its next periodic announcement: within 8 s). The sniffer on the
+    host's LAN link shows that the stand-in is indeed on Cyclone's defaults (its announcements go out on eth0)."""
+    sniffing = AppRunner(ROOT)
+    try:
+        sniffer = sniffing.start_command("sniffer", lan_host.sniffer_command())
+        sniffer.wait_for(SNIFFING, EVENT_TIMEOUT_S)
+        publisher, subscriber = (OURS, CYCLONE_DEFAULTS) if direction == OURS_TO_CYCLONE else (CYCLONE_DEFAULTS, OURS)
+        run_case(case, lan_host.host.name, publisher, subscriber, "1")  # the reference's default: XCDR1
+        sniffer.wait_for(DEFAULT_SPDP, EVENT_TIMEOUT_S)  # the stand-in announced itself on eth0: Cyclone's defaults
+    finally:
+        sniffing.stop_all()
 
 
 @pytest.mark.parametrize("args,pattern", [
