@@ -13,6 +13,14 @@ back as JSON lines:
     hostile = FastDdsPeer.hostile(apps, "PlatformControl", "enum", domain_id)   # valid CDR, nonsense, until stopped
 
 Octet arrays and sequences arrive as {"size", "crc32"} (zlib's CRC-32), with "base64" too when read with data=True.
+
+The peer stays on loopback (UDPv4 on 127.0.0.1, no shared memory, initial peer 127.0.0.1). With ``defaults=True`` it
+is Fast DDS's default participant instead (built-in transports: UDPv4 on every interface and shared memory, multicast
+discovery), which multicasts on every interface of its host: it must run inside a test's own network namespace, so
+``prefix`` (the command that runs it there, e.g. ``lan.host.exec()``; :func:`private_shm` gives it a /dev/shm of the
+test's own) is then required:
+
+    FastDdsPeer.read(apps, ["PlatformStatus"], domain_id, defaults=True, prefix=private_shm(lan.host, shm_folder))
 """
 
 from __future__ import annotations
@@ -24,6 +32,7 @@ import re
 import shutil
 import subprocess
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -76,18 +85,23 @@ class FastDdsPeer:
 
     @classmethod
     def read(cls, apps: Any, topics: list[str], domain_id: int, count: int = 0, qos: str = "default",
-             data: bool = False, name: str = "fastdds-reader", participants: int | None = None) -> FastDdsPeer:
+             data: bool = False, name: str = "fastdds-reader", participants: int | None = None,
+             defaults: bool = False, prefix: Sequence[str] = ()) -> FastDdsPeer:
         """A reader per topic; ``participants``: participant indexes probed on 127.0.0.1 (None: Fast DDS's
-        default, four)."""
+        default, four); ``defaults``: Fast DDS's default participant, run through ``prefix`` (see the module)."""
         command = [str(build()), "read", *topics, "--domain", str(domain_id), "--count", str(count), "--qos", qos]
-        return cls(apps.start_command(name, command + (["--data"] if data else []) + _range(participants)))
+        command += (["--data"] if data else []) + _range(participants)
+        return cls(apps.start_command(name, _transports(command, participants, defaults, prefix)))
 
     @classmethod
     def write_circle(cls, apps: Any, domain_id: int, color: str, x: int, y: int, size: int,
-                     participants: int | None = None) -> FastDdsPeer:
+                     participants: int | None = None, defaults: bool = False, prefix: Sequence[str] = (),
+                     name: str = "fastdds-writer") -> FastDdsPeer:
+        """A Shapes Demo circle written every 100 ms; ``participants``, ``defaults`` and ``prefix`` as for
+        :meth:`read`."""
         command = [str(build()), "write", "Circle", "--domain", str(domain_id), "--color", color,
-                   "--x", str(x), "--y", str(y), "--size", str(size)]
-        return cls(apps.start_command("fastdds-writer", command + _range(participants)))
+                   "--x", str(x), "--y", str(y), "--size", str(size)] + _range(participants)
+        return cls(apps.start_command(name, _transports(command, participants, defaults, prefix)))
 
     @classmethod
     def hostile(cls, apps: Any, topic: str, kind: str, domain_id: int, count: int = 0, period_ms: int = 20
@@ -126,6 +140,28 @@ class FastDdsPeer:
 
 def _range(participants: int | None) -> list[str]:
     return [] if participants is None else ["--participants", str(participants)]
+
+
+def _transports(command: list[str], participants: int | None, defaults: bool, prefix: Sequence[str]) -> list[str]:
+    """The command line run through ``prefix``: on loopback, or with ``--defaults`` (only with a prefix: Fast DDS's
+    defaults multicast on every interface, which must be a test namespace's)."""
+    if not defaults:
+        return [*prefix, *command]
+    if not prefix:
+        raise ValueError("a Fast DDS peer on Fast DDS's defaults multicasts on every interface: run it inside a "
+                         "test's network namespace (give prefix)")
+    if participants is not None:
+        raise ValueError("participants: the Fast DDS peer on its defaults probes Fast DDS's default range")
+    return [*prefix, *command, "--defaults"]
+
+
+def private_shm(namespace: Any, folder: Path) -> list[str]:
+    """The prefix that runs a command inside ``namespace`` (an automotive.tools.netlab.Namespace) with ``folder`` as
+    its /dev/shm: Fast DDS's shared memory transport (on by default) then meets only the peers given the same folder,
+    never a Fast DDS participant of another test or of the host, and leaves nothing in the host's /dev/shm. (``ip
+    netns exec`` runs each command in a mount namespace of its own: the bind mount is that command's alone.)"""
+    folder.mkdir(parents=True, exist_ok=True)
+    return namespace.exec("sh", "-c", 'mount --bind "$0" /dev/shm && exec "$@"', str(folder))
 
 
 def octets(value: dict[str, Any]) -> bytes:

@@ -17,7 +17,9 @@ RTI stays on loopback (UDPv4 only, no multicast, initial peer 127.0.0.1): see th
 (multicast discovery on every interface: inside a test's network namespace only).
 
 Run as a script, inside a test's network namespace, it is one such participant in a process of its own: it writes
-the given samples every 0.2 s and prints one line per matched endpoint and per distinct sample it reads::
+the given samples every 0.2 s and prints one line per matched endpoint and per distinct sample it reads (on stdout,
+each line whole; RTI's own log messages, which RTI writes to stdout a piece at a time, go to stderr instead, so they
+never cut into those lines: read the two apart to match whole lines)::
 
     python tests/rti_peer.py --domain 7 --initial-peers 10.231.0.1 --read Vision,Alerts \\
         --write 'Alerts={"frontCollision": true}'
@@ -28,6 +30,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import os
 import signal
 import sys
 import time
@@ -236,7 +239,21 @@ def _sample_label(name: str, sample: Mapping[str, Any], written: Mapping[str, Ma
     if name == "Alerts":
         flags = ",".join(flag for flag, value in sample.items() if value) or "none"
         return flags, flags
+    if name == "Circle":
+        return sample["color"], f"color={sample['color']}"
     return "any", "any"
+
+
+def _own_lines() -> Callable[[str], None]:
+    """This script's lines on the process's stdout, each in one write; from now on whatever writes to file
+    descriptor 1 (RTI's log messages, a piece at a time) goes to stderr."""
+    stdout = os.dup(1)
+    os.dup2(2, 1)
+
+    def say(line: str) -> None:
+        os.write(stdout, (line + "\n").encode())
+
+    return say
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -258,6 +275,7 @@ def main(argv: list[str] | None = None) -> int:
         except json.JSONDecodeError as error:
             print(f"--write {item}: the sample is not JSON ({error})", file=sys.stderr)
             return 2
+    say = _own_lines()
     try:
         peer = RtiPeer(args.domain, writers=list(samples), readers=readers,
                        initial_peers=[host for host in args.initial_peers.split(",") if host], lan=args.lan)
@@ -267,25 +285,25 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))  # close the participant on the way out
     seen: set[tuple[str, str]] = set()
     matched: dict[str, int] = {}
-    print("rti peer running", flush=True)
+    say("rti peer running")
     try:
         while True:
             for name, sample in samples.items():
                 peer.write(name, sample)
                 count = peer.matched_readers(name)
                 if count > matched.get(f"writer {name}", 0):
-                    print(f"writer {name} matched {count} reader(s)", flush=True)
+                    say(f"writer {name} matched {count} reader(s)")
                 matched[f"writer {name}"] = count
             for name in readers:
                 count = peer.matched_writers(name)
                 if count > matched.get(f"reader {name}", 0):
-                    print(f"reader {name} matched {count} writer(s)", flush=True)
+                    say(f"reader {name} matched {count} writer(s)")
                 matched[f"reader {name}"] = count
                 for sample in peer.take(name):
                     kind, text = _sample_label(name, sample, samples)
                     if (name, kind) not in seen:
                         seen.add((name, kind))
-                        print(f"received {name} {text}", flush=True)
+                        say(f"received {name} {text}")
             time.sleep(0.2)
     finally:
         peer.close()

@@ -20,12 +20,18 @@
 //         CameraImageData: short, long (a frame of 1 KiB, or 64 KiB + 1 KiB, under the 64 KiB frame's type name).
 //       Writer QoS: Fast DDS's defaults with a deadline of 1 s (our readers request 11 s or more).
 //   All: --participants N (participant ids probed on 127.0.0.1; without it Fast DDS's default, 4),
-//         --socket-buffer BYTES (UDP send and receive buffers, 4 MiB; 0: the system's default).
+//         --socket-buffer BYTES (UDP send and receive buffers, 4 MiB; 0: the system's default),
+//         --defaults (Fast DDS's own participant: see below; neither option above goes with it).
 //
 // QoS "default" is Fast DDS's default DataReaderQos; "rviz2" is what RViz2 asks for a point cloud: reliable,
 // volatile, keep last 5. Traffic stays on loopback: UDPv4 on 127.0.0.1 only, shared memory off, no multicast,
 // initial peer 127.0.0.1 probed for participant ids 0..N-1 (Fast DDS's default range unless --participants: the
-// project's participants must find it, as they find any tool started on the host). SIGINT/SIGTERM end it cleanly.
+// project's participants must find it, as they find any tool started on the host). With --defaults the participant
+// is Fast DDS's default one instead, as an application that configures nothing gets it: the built-in transports
+// (UDPv4 on every interface and shared memory) and discovery (announced by multicast on every interface, lo included;
+// Fast DDS 2.9 probes no unicast port by default); only its name is set. That multicasts on every interface of the
+// host: run it only inside a test's own network namespace (and, as it also uses shared memory, with a /dev/shm of the
+// test's: tests/fastdds_peer.py). SIGINT/SIGTERM end it cleanly.
 
 #include <atomic>
 #include <chrono>
@@ -374,10 +380,19 @@ const std::map<std::string, TopicType>& topic_types()
 
 // ---- participant -------------------------------------------------------------------------------------------------
 
-DomainParticipant* create_participant(uint32_t domain, uint32_t participants, uint32_t socket_buffer)
+DomainParticipant* create_participant(uint32_t domain, uint32_t participants, uint32_t socket_buffer,
+                                      bool defaults)
 {
     DomainParticipantQos qos = PARTICIPANT_QOS_DEFAULT;
     qos.name("fastdds_peer");
+    if (defaults) {  // Fast DDS's own transports and discovery, nothing configured
+        DomainParticipant* participant = DomainParticipantFactory::get_instance()->create_participant(domain, qos);
+        if (participant == nullptr) {
+            std::cerr << "fastdds_peer: cannot create a participant on domain " << domain << std::endl;
+            std::exit(1);
+        }
+        return participant;
+    }
     auto udp = std::make_shared<eprosima::fastdds::rtps::UDPv4TransportDescriptor>();
     udp->interfaceWhiteList.push_back("127.0.0.1");
     if (participants > 0) {
@@ -423,6 +438,8 @@ struct Options
     uint32_t period_ms = 100;
     uint32_t participants = DEFAULT_PARTICIPANTS;
     uint32_t socket_buffer = SOCKET_BUFFER;
+    bool defaults = false;
+    bool transport_options = false;  // --participants or --socket-buffer given
 };
 
 uint32_t number(const std::string& option, const char* text)
@@ -442,7 +459,7 @@ Options parse(int argc, char** argv)
         usage_error("usage: fastdds_peer read TOPIC [TOPIC...] [--domain N] [--count N] [--qos default|rviz2] [--data]"
                     " | write Circle --color C --x X --y Y --size S [--domain N] [--count N] [--period-ms MS]"
                     " | hostile TOPIC --kind KIND [--domain N] [--count N] [--period-ms MS];"
-                    " both: [--participants N] [--socket-buffer BYTES]");
+                    " all: [--participants N] [--socket-buffer BYTES] | [--defaults]");
     }
     Options options;
     options.command = argv[1];
@@ -450,6 +467,10 @@ Options parse(int argc, char** argv)
         std::string arg = argv[i];
         if (arg == "--data") {
             print_octets = true;
+            continue;
+        }
+        if (arg == "--defaults") {
+            options.defaults = true;
             continue;
         }
         if (arg.rfind("--", 0) != 0) {
@@ -476,6 +497,10 @@ Options parse(int argc, char** argv)
         else if (arg == "--participants") options.participants = number(arg, value);
         else if (arg == "--socket-buffer") options.socket_buffer = number(arg, value);
         else usage_error("unknown option " + arg);
+        options.transport_options = options.transport_options || arg == "--participants" || arg == "--socket-buffer";
+    }
+    if (options.defaults && options.transport_options) {
+        usage_error("--defaults takes Fast DDS's own transports: --participants and --socket-buffer do not go with it");
     }
     if (options.topics.empty()) {
         usage_error("no topic given");
@@ -845,7 +870,8 @@ int main(int argc, char** argv)
     Options options = parse(argc, argv);
     std::signal(SIGINT, on_signal);
     std::signal(SIGTERM, on_signal);
-    DomainParticipant* participant = create_participant(options.domain, options.participants, options.socket_buffer);
+    DomainParticipant* participant = create_participant(options.domain, options.participants, options.socket_buffer,
+                                                        options.defaults);
     int code = options.command == "read" ? read(participant, options)
                : options.command == "write" ? write(participant, options) : write_hostile(participant, options);
     DomainParticipantFactory::get_instance()->delete_participant(participant);
