@@ -19,6 +19,7 @@ import automotive.types.Sensor as m_Sensor
 import automotive.types.Vision as m_Vision
 import automotive.types.automotive as m_automotive
 import automotive.types.builtin_interfaces.msg.dds_ as m_builtin_interfaces_msg_dds_
+import automotive.types.diagnostic_msgs.msg.dds_ as m_diagnostic_msgs_msg_dds_
 import automotive.types.sensor_msgs.msg.dds_ as m_sensor_msgs_msg_dds_
 import automotive.types.shape as m_shape
 import automotive.types.std_msgs.msg.dds_ as m_std_msgs_msg_dds_
@@ -102,9 +103,11 @@ ENUM_Sensor_RangeModeEnum = {member.value: member for member in m_Sensor.RangeMo
 K0 = (m_Lidar.PCloud, 'Location')
 K1 = (m_Sensor.SensorObjectList, 'objects')
 K2 = (m_Vision.VisionSensor, 'objects')
-K3 = (m_sensor_msgs_msg_dds_.PointCloud2_, 'fields_')
-K4 = (m_sensor_msgs_msg_dds_.PointCloud2_, 'data_')
-K5 = (m_shape.ShapeType, 'additional_payload_size')
+K3 = (m_diagnostic_msgs_msg_dds_.DiagnosticStatus_, 'values_')
+K4 = (m_diagnostic_msgs_msg_dds_.DiagnosticArray_, 'status_')
+K5 = (m_sensor_msgs_msg_dds_.PointCloud2_, 'fields_')
+K6 = (m_sensor_msgs_msg_dds_.PointCloud2_, 'data_')
+K7 = (m_shape.ShapeType, 'additional_payload_size')
 
 
 def build(E):
@@ -168,13 +171,15 @@ def build(E):
     S51 = Struct(E + '4siI')
     S52 = Struct(E + 'iI')
     S53 = Struct(E + '4sIiI')
-    S54 = Struct(E + 'IB3xI')
-    S55 = Struct(E + '4siII')
-    S56 = Struct(E + 'III')
-    S57 = Struct(E + '?3xIII')
-    S58 = Struct(E + 'iII')
-    S59 = Struct(E + 'IiII')
-    S60 = Struct(E + 'IIII')
+    S54 = Struct(E + '4sB3xI')
+    S55 = Struct(E + 'B3xI')
+    S56 = Struct(E + '4siII')
+    S57 = Struct(E + 'iII')
+    S58 = Struct(E + 'IiII')
+    S59 = Struct(E + 'IB3xI')
+    S60 = Struct(E + 'III')
+    S61 = Struct(E + '?3xIII')
+    S62 = Struct(E + 'IIII')
     DT1_Lidar_Point = dtype_of([('point', (E + 'f4', (3,)), 0)], 12)
     DT2_Lidar_Point = dtype_of([('point', (E + 'f4', (3,)), 0)], 12)
     DT1_Sensor_SensorObject = dtype_of([('classification', E + 'u4', 0), ('position', (E + 'f4', (3,)), 4), ('velocity', (E + 'f4', (3,)), 16), ('size', (E + 'f4', (3,)), 28), ('amplitude', E + 'f4', 40), ('rangeMode', E + 'u4', 44), ('rangeRate', E + 'f4', 48)], 52)
@@ -1592,6 +1597,567 @@ def build(E):
             m6 = 0
         return m_builtin_interfaces_msg_dds_.Time_(m4, m6), stop
 
+    def e1_diagnostic_msgs_msg_dds__KeyValue_(sample):
+        v1 = sample
+        s2 = v1.key_
+        b3 = s2.encode()
+        buf = bytearray(S25.pack(H1, len(b3) + 1))
+        buf += b3
+        buf.append(0)
+        s4 = v1.value_
+        b5 = s4.encode()
+        buf += PADDING[(4 - len(buf)) & 3]
+        buf += S7.pack(len(b5) + 1)
+        buf += b5
+        buf.append(0)
+        return bytes(buf)
+
+    def d1_diagnostic_msgs_msg_dds__KeyValue_(data, pos, end, views):
+        t1, = S7.unpack_from(data, pos)
+        pos += 4
+        if not 0 < t1 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.key_', t1, pos, end)
+        if data[pos + t1 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.key_: the string at byte {pos} does not end with a NUL')
+        s2 = str(data[pos:pos + t1 - 1], 'utf-8')
+        pos += t1
+        pos += (4 - pos) & 3
+        t3, = S7.unpack_from(data, pos)
+        pos += 4
+        if not 0 < t3 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.value_', t3, pos, end)
+        if data[pos + t3 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.value_: the string at byte {pos} does not end with a NUL')
+        s4 = str(data[pos:pos + t3 - 1], 'utf-8')
+        pos += t3
+        return m_diagnostic_msgs_msg_dds_.KeyValue_(s2, s4), pos
+
+    def e2_diagnostic_msgs_msg_dds__KeyValue_(sample):
+        v1 = sample
+        s2 = v1.key_
+        b3 = s2.encode()
+        buf = bytearray(S25.pack(H2F, len(b3) + 1))
+        buf += b3
+        buf.append(0)
+        s4 = v1.value_
+        b5 = s4.encode()
+        buf += PADDING[(4 - len(buf)) & 3]
+        buf += S7.pack(len(b5) + 1)
+        buf += b5
+        buf.append(0)
+        return bytes(buf)
+
+    def d2_diagnostic_msgs_msg_dds__KeyValue_(data, pos, end, views):
+        t1, = S7.unpack_from(data, pos)
+        pos += 4
+        if not 0 < t1 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.key_', t1, pos, end)
+        if data[pos + t1 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.key_: the string at byte {pos} does not end with a NUL')
+        s2 = str(data[pos:pos + t1 - 1], 'utf-8')
+        pos += t1
+        pos += (4 - pos) & 3
+        t3, = S7.unpack_from(data, pos)
+        pos += 4
+        if not 0 < t3 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.value_', t3, pos, end)
+        if data[pos + t3 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.value_: the string at byte {pos} does not end with a NUL')
+        s4 = str(data[pos:pos + t3 - 1], 'utf-8')
+        pos += t3
+        return m_diagnostic_msgs_msg_dds_.KeyValue_(s2, s4), pos
+
+    def e1_diagnostic_msgs_msg_dds__DiagnosticStatus_(sample):
+        v1 = sample
+        s2 = v1.name_
+        b3 = s2.encode()
+        buf = bytearray(S54.pack(H1, v1.level_, len(b3) + 1))
+        buf += b3
+        buf.append(0)
+        s4 = v1.message_
+        b5 = s4.encode()
+        buf += PADDING[(4 - len(buf)) & 3]
+        buf += S7.pack(len(b5) + 1)
+        buf += b5
+        buf.append(0)
+        s6 = v1.hardware_id_
+        b7 = s6.encode()
+        buf += PADDING[(4 - len(buf)) & 3]
+        buf += S7.pack(len(b7) + 1)
+        buf += b7
+        buf.append(0)
+        q8 = v1.values_
+        n9 = len(q8)
+        if n9 > EXTRA_BOUNDS.get(K3, n9): raise OverBound('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', n9, EXTRA_BOUNDS[K3], 'elements')
+        buf += PADDING[(4 - len(buf)) & 3]
+        buf += S7.pack(n9)
+        for x10 in q8:
+            v11 = x10
+            s12 = v11.key_
+            b13 = s12.encode()
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(len(b13) + 1)
+            buf += b13
+            buf.append(0)
+            s14 = v11.value_
+            b15 = s14.encode()
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(len(b15) + 1)
+            buf += b15
+            buf.append(0)
+        return bytes(buf)
+
+    def d1_diagnostic_msgs_msg_dds__DiagnosticStatus_(data, pos, end, views):
+        t1, t2, = S55.unpack_from(data, pos)
+        pos += 8
+        if not 0 < t2 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.name_', t2, pos, end)
+        if data[pos + t2 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.name_: the string at byte {pos} does not end with a NUL')
+        s3 = str(data[pos:pos + t2 - 1], 'utf-8')
+        pos += t2
+        pos += (4 - pos) & 3
+        t4, = S7.unpack_from(data, pos)
+        pos += 4
+        if not 0 < t4 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.message_', t4, pos, end)
+        if data[pos + t4 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.message_: the string at byte {pos} does not end with a NUL')
+        s5 = str(data[pos:pos + t4 - 1], 'utf-8')
+        pos += t4
+        pos += (4 - pos) & 3
+        t6, = S7.unpack_from(data, pos)
+        pos += 4
+        if not 0 < t6 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.hardware_id_', t6, pos, end)
+        if data[pos + t6 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.hardware_id_: the string at byte {pos} does not end with a NUL')
+        s7 = str(data[pos:pos + t6 - 1], 'utf-8')
+        pos += t6
+        pos += (4 - pos) & 3
+        t8, = S7.unpack_from(data, pos)
+        pos += 4
+        if t8 > end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', t8, pos, end)
+        q9 = []
+        for _ in range(t8):
+            pos += (4 - pos) & 3
+            t10, = S7.unpack_from(data, pos)
+            pos += 4
+            if not 0 < t10 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.key_', t10, pos, end)
+            if data[pos + t10 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.key_: the string at byte {pos} does not end with a NUL')
+            s11 = str(data[pos:pos + t10 - 1], 'utf-8')
+            pos += t10
+            pos += (4 - pos) & 3
+            t12, = S7.unpack_from(data, pos)
+            pos += 4
+            if not 0 < t12 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.value_', t12, pos, end)
+            if data[pos + t12 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.value_: the string at byte {pos} does not end with a NUL')
+            s13 = str(data[pos:pos + t12 - 1], 'utf-8')
+            pos += t12
+            q9.append(m_diagnostic_msgs_msg_dds_.KeyValue_(s11, s13))
+        return m_diagnostic_msgs_msg_dds_.DiagnosticStatus_(t1, s3, s5, s7, q9), pos
+
+    def e2_diagnostic_msgs_msg_dds__DiagnosticStatus_(sample):
+        v1 = sample
+        s2 = v1.name_
+        b3 = s2.encode()
+        buf = bytearray(S54.pack(H2F, v1.level_, len(b3) + 1))
+        buf += b3
+        buf.append(0)
+        s4 = v1.message_
+        b5 = s4.encode()
+        buf += PADDING[(4 - len(buf)) & 3]
+        buf += S7.pack(len(b5) + 1)
+        buf += b5
+        buf.append(0)
+        s6 = v1.hardware_id_
+        b7 = s6.encode()
+        buf += PADDING[(4 - len(buf)) & 3]
+        buf += S7.pack(len(b7) + 1)
+        buf += b7
+        buf.append(0)
+        q8 = v1.values_
+        n9 = len(q8)
+        if n9 > EXTRA_BOUNDS.get(K3, n9): raise OverBound('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', n9, EXTRA_BOUNDS[K3], 'elements')
+        buf += PADDING[(4 - len(buf)) & 3]
+        buf += S30.pack(0, n9)
+        h10 = len(buf) - 4
+        for x11 in q8:
+            v12 = x11
+            s13 = v12.key_
+            b14 = s13.encode()
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(len(b14) + 1)
+            buf += b14
+            buf.append(0)
+            s15 = v12.value_
+            b16 = s15.encode()
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(len(b16) + 1)
+            buf += b16
+            buf.append(0)
+        U32.pack_into(buf, h10 - 4, len(buf) - h10)
+        return bytes(buf)
+
+    def d2_diagnostic_msgs_msg_dds__DiagnosticStatus_(data, pos, end, views):
+        t1, t2, = S55.unpack_from(data, pos)
+        pos += 8
+        if not 0 < t2 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.name_', t2, pos, end)
+        if data[pos + t2 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.name_: the string at byte {pos} does not end with a NUL')
+        s3 = str(data[pos:pos + t2 - 1], 'utf-8')
+        pos += t2
+        pos += (4 - pos) & 3
+        t4, = S7.unpack_from(data, pos)
+        pos += 4
+        if not 0 < t4 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.message_', t4, pos, end)
+        if data[pos + t4 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.message_: the string at byte {pos} does not end with a NUL')
+        s5 = str(data[pos:pos + t4 - 1], 'utf-8')
+        pos += t4
+        pos += (4 - pos) & 3
+        t6, = S7.unpack_from(data, pos)
+        pos += 4
+        if not 0 < t6 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.hardware_id_', t6, pos, end)
+        if data[pos + t6 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.hardware_id_: the string at byte {pos} does not end with a NUL')
+        s7 = str(data[pos:pos + t6 - 1], 'utf-8')
+        pos += t6
+        pos += (4 - pos) & 3
+        t8, t9, = S30.unpack_from(data, pos)
+        pos += 8
+        h10 = pos + t8 - 4
+        if h10 > end: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', t8, pos, end)
+        if t9 > end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', t9, pos, end)
+        q11 = []
+        for _ in range(t9):
+            pos += (4 - pos) & 3
+            t12, = S7.unpack_from(data, pos)
+            pos += 4
+            if not 0 < t12 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.key_', t12, pos, end)
+            if data[pos + t12 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.key_: the string at byte {pos} does not end with a NUL')
+            s13 = str(data[pos:pos + t12 - 1], 'utf-8')
+            pos += t12
+            pos += (4 - pos) & 3
+            t14, = S7.unpack_from(data, pos)
+            pos += 4
+            if not 0 < t14 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.value_', t14, pos, end)
+            if data[pos + t14 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.value_: the string at byte {pos} does not end with a NUL')
+            s15 = str(data[pos:pos + t14 - 1], 'utf-8')
+            pos += t14
+            q11.append(m_diagnostic_msgs_msg_dds_.KeyValue_(s13, s15))
+        if pos != h10: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_: its DHEADER ends at byte {h10}, its elements at {pos}')
+        return m_diagnostic_msgs_msg_dds_.DiagnosticStatus_(t1, s3, s5, s7, q11), pos
+
+    def e1_diagnostic_msgs_msg_dds__DiagnosticArray_(sample):
+        v1 = sample
+        v2 = v1.header_
+        v3 = v2.stamp_
+        s4 = v2.frame_id_
+        b5 = s4.encode()
+        buf = bytearray(S56.pack(H1, v3.sec_, v3.nanosec_, len(b5) + 1))
+        buf += b5
+        buf.append(0)
+        q6 = v1.status_
+        n7 = len(q6)
+        if n7 > EXTRA_BOUNDS.get(K4, n7): raise OverBound('diagnostic_msgs::msg::dds_::DiagnosticArray_.status_', n7, EXTRA_BOUNDS[K4], 'elements')
+        buf += PADDING[(4 - len(buf)) & 3]
+        buf += S7.pack(n7)
+        for x8 in q6:
+            v9 = x8
+            s10 = v9.name_
+            b11 = s10.encode()
+            buf += S31.pack(v9.level_)
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(len(b11) + 1)
+            buf += b11
+            buf.append(0)
+            s12 = v9.message_
+            b13 = s12.encode()
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(len(b13) + 1)
+            buf += b13
+            buf.append(0)
+            s14 = v9.hardware_id_
+            b15 = s14.encode()
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(len(b15) + 1)
+            buf += b15
+            buf.append(0)
+            q16 = v9.values_
+            n17 = len(q16)
+            if n17 > EXTRA_BOUNDS.get(K3, n17): raise OverBound('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', n17, EXTRA_BOUNDS[K3], 'elements')
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(n17)
+            for x18 in q16:
+                v19 = x18
+                s20 = v19.key_
+                b21 = s20.encode()
+                buf += PADDING[(4 - len(buf)) & 3]
+                buf += S7.pack(len(b21) + 1)
+                buf += b21
+                buf.append(0)
+                s22 = v19.value_
+                b23 = s22.encode()
+                buf += PADDING[(4 - len(buf)) & 3]
+                buf += S7.pack(len(b23) + 1)
+                buf += b23
+                buf.append(0)
+        return bytes(buf)
+
+    def d1_diagnostic_msgs_msg_dds__DiagnosticArray_(data, pos, end, views):
+        t1, t2, t3, = S57.unpack_from(data, pos)
+        pos += 12
+        if not 0 < t3 <= end - pos: raise truncated('std_msgs::msg::dds_::Header_.frame_id_', t3, pos, end)
+        if data[pos + t3 - 1]: raise CodecError(f'std_msgs::msg::dds_::Header_.frame_id_: the string at byte {pos} does not end with a NUL')
+        s4 = str(data[pos:pos + t3 - 1], 'utf-8')
+        pos += t3
+        pos += (4 - pos) & 3
+        t5, = S7.unpack_from(data, pos)
+        pos += 4
+        if t5 > end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticArray_.status_', t5, pos, end)
+        q6 = []
+        for _ in range(t5):
+            t7, = S31.unpack_from(data, pos)
+            pos += 1
+            pos += (4 - pos) & 3
+            t8, = S7.unpack_from(data, pos)
+            pos += 4
+            if not 0 < t8 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.name_', t8, pos, end)
+            if data[pos + t8 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.name_: the string at byte {pos} does not end with a NUL')
+            s9 = str(data[pos:pos + t8 - 1], 'utf-8')
+            pos += t8
+            pos += (4 - pos) & 3
+            t10, = S7.unpack_from(data, pos)
+            pos += 4
+            if not 0 < t10 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.message_', t10, pos, end)
+            if data[pos + t10 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.message_: the string at byte {pos} does not end with a NUL')
+            s11 = str(data[pos:pos + t10 - 1], 'utf-8')
+            pos += t10
+            pos += (4 - pos) & 3
+            t12, = S7.unpack_from(data, pos)
+            pos += 4
+            if not 0 < t12 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.hardware_id_', t12, pos, end)
+            if data[pos + t12 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.hardware_id_: the string at byte {pos} does not end with a NUL')
+            s13 = str(data[pos:pos + t12 - 1], 'utf-8')
+            pos += t12
+            pos += (4 - pos) & 3
+            t14, = S7.unpack_from(data, pos)
+            pos += 4
+            if t14 > end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', t14, pos, end)
+            q15 = []
+            for _ in range(t14):
+                pos += (4 - pos) & 3
+                t16, = S7.unpack_from(data, pos)
+                pos += 4
+                if not 0 < t16 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.key_', t16, pos, end)
+                if data[pos + t16 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.key_: the string at byte {pos} does not end with a NUL')
+                s17 = str(data[pos:pos + t16 - 1], 'utf-8')
+                pos += t16
+                pos += (4 - pos) & 3
+                t18, = S7.unpack_from(data, pos)
+                pos += 4
+                if not 0 < t18 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.value_', t18, pos, end)
+                if data[pos + t18 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.value_: the string at byte {pos} does not end with a NUL')
+                s19 = str(data[pos:pos + t18 - 1], 'utf-8')
+                pos += t18
+                q15.append(m_diagnostic_msgs_msg_dds_.KeyValue_(s17, s19))
+            q6.append(m_diagnostic_msgs_msg_dds_.DiagnosticStatus_(t7, s9, s11, s13, q15))
+        return m_diagnostic_msgs_msg_dds_.DiagnosticArray_(m_std_msgs_msg_dds_.Header_(m_builtin_interfaces_msg_dds_.Time_(t1, t2), s4), q6), pos
+
+    def e2_diagnostic_msgs_msg_dds__DiagnosticArray_(sample):
+        v1 = sample
+        buf = bytearray(S25.pack(H2A, 0))
+        h2 = len(buf)
+        v3 = v1.header_
+        buf += S7.pack(0)
+        h4 = len(buf)
+        v5 = v3.stamp_
+        s6 = v3.frame_id_
+        b7 = s6.encode()
+        buf += S58.pack(8, v5.sec_, v5.nanosec_, len(b7) + 1)
+        buf += b7
+        buf.append(0)
+        U32.pack_into(buf, h4 - 4, len(buf) - h4)
+        q8 = v1.status_
+        n9 = len(q8)
+        if n9 > EXTRA_BOUNDS.get(K4, n9): raise OverBound('diagnostic_msgs::msg::dds_::DiagnosticArray_.status_', n9, EXTRA_BOUNDS[K4], 'elements')
+        buf += PADDING[(4 - len(buf)) & 3]
+        buf += S30.pack(0, n9)
+        h10 = len(buf) - 4
+        for x11 in q8:
+            v12 = x11
+            s13 = v12.name_
+            b14 = s13.encode()
+            buf += S31.pack(v12.level_)
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(len(b14) + 1)
+            buf += b14
+            buf.append(0)
+            s15 = v12.message_
+            b16 = s15.encode()
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(len(b16) + 1)
+            buf += b16
+            buf.append(0)
+            s17 = v12.hardware_id_
+            b18 = s17.encode()
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S7.pack(len(b18) + 1)
+            buf += b18
+            buf.append(0)
+            q19 = v12.values_
+            n20 = len(q19)
+            if n20 > EXTRA_BOUNDS.get(K3, n20): raise OverBound('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', n20, EXTRA_BOUNDS[K3], 'elements')
+            buf += PADDING[(4 - len(buf)) & 3]
+            buf += S30.pack(0, n20)
+            h21 = len(buf) - 4
+            for x22 in q19:
+                v23 = x22
+                s24 = v23.key_
+                b25 = s24.encode()
+                buf += PADDING[(4 - len(buf)) & 3]
+                buf += S7.pack(len(b25) + 1)
+                buf += b25
+                buf.append(0)
+                s26 = v23.value_
+                b27 = s26.encode()
+                buf += PADDING[(4 - len(buf)) & 3]
+                buf += S7.pack(len(b27) + 1)
+                buf += b27
+                buf.append(0)
+            U32.pack_into(buf, h21 - 4, len(buf) - h21)
+        U32.pack_into(buf, h10 - 4, len(buf) - h10)
+        U32.pack_into(buf, h2 - 4, len(buf) - h2)
+        return bytes(buf)
+
+    def d2_diagnostic_msgs_msg_dds__DiagnosticArray_(data, pos, end, views):
+        size, = U32.unpack_from(data, pos)
+        start = pos + 4
+        stop = start + size
+        if stop > end: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticArray_', size, start, end)
+        try:
+            pos = start
+            v1, pos = d2_std_msgs_msg_dds__Header_(data, pos, end, views)
+            pos += (4 - pos) & 3
+            t2, t3, = S30.unpack_from(data, pos)
+            pos += 8
+            h4 = pos + t2 - 4
+            if h4 > end: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticArray_.status_', t2, pos, end)
+            if t3 > end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticArray_.status_', t3, pos, end)
+            q5 = []
+            for _ in range(t3):
+                t6, = S31.unpack_from(data, pos)
+                pos += 1
+                pos += (4 - pos) & 3
+                t7, = S7.unpack_from(data, pos)
+                pos += 4
+                if not 0 < t7 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.name_', t7, pos, end)
+                if data[pos + t7 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.name_: the string at byte {pos} does not end with a NUL')
+                s8 = str(data[pos:pos + t7 - 1], 'utf-8')
+                pos += t7
+                pos += (4 - pos) & 3
+                t9, = S7.unpack_from(data, pos)
+                pos += 4
+                if not 0 < t9 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.message_', t9, pos, end)
+                if data[pos + t9 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.message_: the string at byte {pos} does not end with a NUL')
+                s10 = str(data[pos:pos + t9 - 1], 'utf-8')
+                pos += t9
+                pos += (4 - pos) & 3
+                t11, = S7.unpack_from(data, pos)
+                pos += 4
+                if not 0 < t11 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.hardware_id_', t11, pos, end)
+                if data[pos + t11 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.hardware_id_: the string at byte {pos} does not end with a NUL')
+                s12 = str(data[pos:pos + t11 - 1], 'utf-8')
+                pos += t11
+                pos += (4 - pos) & 3
+                t13, t14, = S30.unpack_from(data, pos)
+                pos += 8
+                h15 = pos + t13 - 4
+                if h15 > end: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', t13, pos, end)
+                if t14 > end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', t14, pos, end)
+                q16 = []
+                for _ in range(t14):
+                    pos += (4 - pos) & 3
+                    t17, = S7.unpack_from(data, pos)
+                    pos += 4
+                    if not 0 < t17 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.key_', t17, pos, end)
+                    if data[pos + t17 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.key_: the string at byte {pos} does not end with a NUL')
+                    s18 = str(data[pos:pos + t17 - 1], 'utf-8')
+                    pos += t17
+                    pos += (4 - pos) & 3
+                    t19, = S7.unpack_from(data, pos)
+                    pos += 4
+                    if not 0 < t19 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.value_', t19, pos, end)
+                    if data[pos + t19 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.value_: the string at byte {pos} does not end with a NUL')
+                    s20 = str(data[pos:pos + t19 - 1], 'utf-8')
+                    pos += t19
+                    q16.append(m_diagnostic_msgs_msg_dds_.KeyValue_(s18, s20))
+                if pos != h15: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_: its DHEADER ends at byte {h15}, its elements at {pos}')
+                q5.append(m_diagnostic_msgs_msg_dds_.DiagnosticStatus_(t6, s8, s10, s12, q16))
+            if pos != h4: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticArray_.status_: its DHEADER ends at byte {h4}, its elements at {pos}')
+            if pos <= stop:
+                return m_diagnostic_msgs_msg_dds_.DiagnosticArray_(v1, q5), stop
+        except Exception:
+            pass
+        return t2_diagnostic_msgs_msg_dds__DiagnosticArray_(data, start, stop, end, views)
+
+    def t2_diagnostic_msgs_msg_dds__DiagnosticArray_(data, start, stop, end, views):
+        # diagnostic_msgs::msg::dds_::DiagnosticArray_ shorter than this version of it: the members past its end take their defaults
+        pos = start
+        if pos < stop:
+            v21, pos = d2_std_msgs_msg_dds__Header_(data, pos, end, views)
+            m22 = v21
+            if pos > stop: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticArray_.header_ ends at byte {pos}, past the end of its struct at {stop}')
+        else:
+            m22 = m_std_msgs_msg_dds_.Header_(m_builtin_interfaces_msg_dds_.Time_(0, 0), '')
+        if pos < stop:
+            pos += (4 - pos) & 3
+            t23, t24, = S30.unpack_from(data, pos)
+            pos += 8
+            h25 = pos + t23 - 4
+            if h25 > end: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticArray_.status_', t23, pos, end)
+            if t24 > end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticArray_.status_', t24, pos, end)
+            q26 = []
+            for _ in range(t24):
+                t27, = S31.unpack_from(data, pos)
+                pos += 1
+                pos += (4 - pos) & 3
+                t28, = S7.unpack_from(data, pos)
+                pos += 4
+                if not 0 < t28 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.name_', t28, pos, end)
+                if data[pos + t28 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.name_: the string at byte {pos} does not end with a NUL')
+                s29 = str(data[pos:pos + t28 - 1], 'utf-8')
+                pos += t28
+                pos += (4 - pos) & 3
+                t30, = S7.unpack_from(data, pos)
+                pos += 4
+                if not 0 < t30 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.message_', t30, pos, end)
+                if data[pos + t30 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.message_: the string at byte {pos} does not end with a NUL')
+                s31 = str(data[pos:pos + t30 - 1], 'utf-8')
+                pos += t30
+                pos += (4 - pos) & 3
+                t32, = S7.unpack_from(data, pos)
+                pos += 4
+                if not 0 < t32 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.hardware_id_', t32, pos, end)
+                if data[pos + t32 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.hardware_id_: the string at byte {pos} does not end with a NUL')
+                s33 = str(data[pos:pos + t32 - 1], 'utf-8')
+                pos += t32
+                pos += (4 - pos) & 3
+                t34, t35, = S30.unpack_from(data, pos)
+                pos += 8
+                h36 = pos + t34 - 4
+                if h36 > end: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', t34, pos, end)
+                if t35 > end - pos: raise truncated('diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_', t35, pos, end)
+                q37 = []
+                for _ in range(t35):
+                    pos += (4 - pos) & 3
+                    t38, = S7.unpack_from(data, pos)
+                    pos += 4
+                    if not 0 < t38 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.key_', t38, pos, end)
+                    if data[pos + t38 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.key_: the string at byte {pos} does not end with a NUL')
+                    s39 = str(data[pos:pos + t38 - 1], 'utf-8')
+                    pos += t38
+                    pos += (4 - pos) & 3
+                    t40, = S7.unpack_from(data, pos)
+                    pos += 4
+                    if not 0 < t40 <= end - pos: raise truncated('diagnostic_msgs::msg::dds_::KeyValue_.value_', t40, pos, end)
+                    if data[pos + t40 - 1]: raise CodecError(f'diagnostic_msgs::msg::dds_::KeyValue_.value_: the string at byte {pos} does not end with a NUL')
+                    s41 = str(data[pos:pos + t40 - 1], 'utf-8')
+                    pos += t40
+                    q37.append(m_diagnostic_msgs_msg_dds_.KeyValue_(s39, s41))
+                if pos != h36: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticStatus_.values_: its DHEADER ends at byte {h36}, its elements at {pos}')
+                q26.append(m_diagnostic_msgs_msg_dds_.DiagnosticStatus_(t27, s29, s31, s33, q37))
+            if pos != h25: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticArray_.status_: its DHEADER ends at byte {h25}, its elements at {pos}')
+            m42 = q26
+            if pos > stop: raise CodecError(f'diagnostic_msgs::msg::dds_::DiagnosticArray_.status_ ends at byte {pos}, past the end of its struct at {stop}')
+        else:
+            m42 = []
+        return m_diagnostic_msgs_msg_dds_.DiagnosticArray_(m22, m42), stop
+
     def e1_sensor_msgs_msg_dds__PointField_(sample):
         v1 = sample
         s2 = v1.name_
@@ -1600,7 +2166,7 @@ def build(E):
         buf += b3
         buf.append(0)
         buf += PADDING[(4 - len(buf)) & 3]
-        buf += S54.pack(v1.offset_, v1.datatype_, v1.count_)
+        buf += S59.pack(v1.offset_, v1.datatype_, v1.count_)
         return bytes(buf)
 
     def d1_sensor_msgs_msg_dds__PointField_(data, pos, end, views):
@@ -1611,7 +2177,7 @@ def build(E):
         s2 = str(data[pos:pos + t1 - 1], 'utf-8')
         pos += t1
         pos += (4 - pos) & 3
-        t3, t4, t5, = S54.unpack_from(data, pos)
+        t3, t4, t5, = S59.unpack_from(data, pos)
         pos += 12
         return m_sensor_msgs_msg_dds_.PointField_(s2, t3, t4, t5), pos
 
@@ -1623,7 +2189,7 @@ def build(E):
         buf += b3
         buf.append(0)
         buf += PADDING[(4 - len(buf)) & 3]
-        buf += S54.pack(v1.offset_, v1.datatype_, v1.count_)
+        buf += S59.pack(v1.offset_, v1.datatype_, v1.count_)
         return bytes(buf)
 
     def d2_sensor_msgs_msg_dds__PointField_(data, pos, end, views):
@@ -1634,7 +2200,7 @@ def build(E):
         s2 = str(data[pos:pos + t1 - 1], 'utf-8')
         pos += t1
         pos += (4 - pos) & 3
-        t3, t4, t5, = S54.unpack_from(data, pos)
+        t3, t4, t5, = S59.unpack_from(data, pos)
         pos += 12
         return m_sensor_msgs_msg_dds_.PointField_(s2, t3, t4, t5), pos
 
@@ -1644,15 +2210,15 @@ def build(E):
         v3 = v2.stamp_
         s4 = v2.frame_id_
         b5 = s4.encode()
-        buf = bytearray(S55.pack(H1, v3.sec_, v3.nanosec_, len(b5) + 1))
+        buf = bytearray(S56.pack(H1, v3.sec_, v3.nanosec_, len(b5) + 1))
         buf += b5
         buf.append(0)
         buf += PADDING[(4 - len(buf)) & 3]
         q6 = v1.fields_
         n7 = len(q6)
         if n7 > 4: raise OverBound('sensor_msgs::msg::dds_::PointCloud2_.fields_', n7, 4, 'elements')
-        if n7 > EXTRA_BOUNDS.get(K3, n7): raise OverBound('sensor_msgs::msg::dds_::PointCloud2_.fields_', n7, EXTRA_BOUNDS[K3], 'elements')
-        buf += S56.pack(v1.height_, v1.width_, n7)
+        if n7 > EXTRA_BOUNDS.get(K5, n7): raise OverBound('sensor_msgs::msg::dds_::PointCloud2_.fields_', n7, EXTRA_BOUNDS[K5], 'elements')
+        buf += S60.pack(v1.height_, v1.width_, n7)
         for x8 in q6:
             v9 = x8
             s10 = v9.name_
@@ -1661,24 +2227,24 @@ def build(E):
             buf += b11
             buf.append(0)
             buf += PADDING[(4 - len(buf)) & 3]
-            buf += S54.pack(v9.offset_, v9.datatype_, v9.count_)
+            buf += S59.pack(v9.offset_, v9.datatype_, v9.count_)
         o12 = octets(v1.data_, 'sensor_msgs::msg::dds_::PointCloud2_.data_')
         n13 = len(o12)
-        if n13 > EXTRA_BOUNDS.get(K4, n13): raise OverBound('sensor_msgs::msg::dds_::PointCloud2_.data_', n13, EXTRA_BOUNDS[K4], 'elements')
-        buf += S57.pack(v1.is_bigendian_, v1.point_step_, v1.row_step_, n13)
+        if n13 > EXTRA_BOUNDS.get(K6, n13): raise OverBound('sensor_msgs::msg::dds_::PointCloud2_.data_', n13, EXTRA_BOUNDS[K6], 'elements')
+        buf += S61.pack(v1.is_bigendian_, v1.point_step_, v1.row_step_, n13)
         buf += o12
         buf += S3.pack(v1.is_dense_)
         return bytes(buf)
 
     def d1_sensor_msgs_msg_dds__PointCloud2_(data, pos, end, views):
-        t1, t2, t3, = S58.unpack_from(data, pos)
+        t1, t2, t3, = S57.unpack_from(data, pos)
         pos += 12
         if not 0 < t3 <= end - pos: raise truncated('std_msgs::msg::dds_::Header_.frame_id_', t3, pos, end)
         if data[pos + t3 - 1]: raise CodecError(f'std_msgs::msg::dds_::Header_.frame_id_: the string at byte {pos} does not end with a NUL')
         s4 = str(data[pos:pos + t3 - 1], 'utf-8')
         pos += t3
         pos += (4 - pos) & 3
-        t5, t6, t7, = S56.unpack_from(data, pos)
+        t5, t6, t7, = S60.unpack_from(data, pos)
         pos += 12
         if t7 > 4: raise over_bound_read('sensor_msgs::msg::dds_::PointCloud2_.fields_', t7, 4)
         if t7 > end - pos: raise truncated('sensor_msgs::msg::dds_::PointCloud2_.fields_', t7, pos, end)
@@ -1691,10 +2257,10 @@ def build(E):
             s10 = str(data[pos:pos + t9 - 1], 'utf-8')
             pos += t9
             pos += (4 - pos) & 3
-            t11, t12, t13, = S54.unpack_from(data, pos)
+            t11, t12, t13, = S59.unpack_from(data, pos)
             pos += 12
             q8.append(m_sensor_msgs_msg_dds_.PointField_(s10, t11, t12, t13))
-        t14, t15, t16, t17, = S57.unpack_from(data, pos)
+        t14, t15, t16, t17, = S61.unpack_from(data, pos)
         pos += 16
         if t17 > end - pos: raise truncated('sensor_msgs::msg::dds_::PointCloud2_.data_', t17, pos, end)
         o18 = bytes(data[pos:pos + t17])
@@ -1713,7 +2279,7 @@ def build(E):
         v5 = v3.stamp_
         s6 = v3.frame_id_
         b7 = s6.encode()
-        buf += S59.pack(8, v5.sec_, v5.nanosec_, len(b7) + 1)
+        buf += S58.pack(8, v5.sec_, v5.nanosec_, len(b7) + 1)
         buf += b7
         buf.append(0)
         U32.pack_into(buf, h4 - 4, len(buf) - h4)
@@ -1721,8 +2287,8 @@ def build(E):
         q8 = v1.fields_
         n9 = len(q8)
         if n9 > 4: raise OverBound('sensor_msgs::msg::dds_::PointCloud2_.fields_', n9, 4, 'elements')
-        if n9 > EXTRA_BOUNDS.get(K3, n9): raise OverBound('sensor_msgs::msg::dds_::PointCloud2_.fields_', n9, EXTRA_BOUNDS[K3], 'elements')
-        buf += S60.pack(v1.height_, v1.width_, 0, n9)
+        if n9 > EXTRA_BOUNDS.get(K5, n9): raise OverBound('sensor_msgs::msg::dds_::PointCloud2_.fields_', n9, EXTRA_BOUNDS[K5], 'elements')
+        buf += S62.pack(v1.height_, v1.width_, 0, n9)
         h10 = len(buf) - 4
         for x11 in q8:
             v12 = x11
@@ -1732,12 +2298,12 @@ def build(E):
             buf += b14
             buf.append(0)
             buf += PADDING[(4 - len(buf)) & 3]
-            buf += S54.pack(v12.offset_, v12.datatype_, v12.count_)
+            buf += S59.pack(v12.offset_, v12.datatype_, v12.count_)
         U32.pack_into(buf, h10 - 4, len(buf) - h10)
         o15 = octets(v1.data_, 'sensor_msgs::msg::dds_::PointCloud2_.data_')
         n16 = len(o15)
-        if n16 > EXTRA_BOUNDS.get(K4, n16): raise OverBound('sensor_msgs::msg::dds_::PointCloud2_.data_', n16, EXTRA_BOUNDS[K4], 'elements')
-        buf += S57.pack(v1.is_bigendian_, v1.point_step_, v1.row_step_, n16)
+        if n16 > EXTRA_BOUNDS.get(K6, n16): raise OverBound('sensor_msgs::msg::dds_::PointCloud2_.data_', n16, EXTRA_BOUNDS[K6], 'elements')
+        buf += S61.pack(v1.is_bigendian_, v1.point_step_, v1.row_step_, n16)
         buf += o15
         buf += S3.pack(v1.is_dense_)
         U32.pack_into(buf, h2 - 4, len(buf) - h2)
@@ -1752,7 +2318,7 @@ def build(E):
             pos = start
             v1, pos = d2_std_msgs_msg_dds__Header_(data, pos, end, views)
             pos += (4 - pos) & 3
-            t2, t3, t4, t5, = S60.unpack_from(data, pos)
+            t2, t3, t4, t5, = S62.unpack_from(data, pos)
             pos += 16
             if t5 > 4: raise over_bound_read('sensor_msgs::msg::dds_::PointCloud2_.fields_', t5, 4)
             h6 = pos + t4 - 4
@@ -1767,11 +2333,11 @@ def build(E):
                 s9 = str(data[pos:pos + t8 - 1], 'utf-8')
                 pos += t8
                 pos += (4 - pos) & 3
-                t10, t11, t12, = S54.unpack_from(data, pos)
+                t10, t11, t12, = S59.unpack_from(data, pos)
                 pos += 12
                 q7.append(m_sensor_msgs_msg_dds_.PointField_(s9, t10, t11, t12))
             if pos != h6: raise CodecError(f'sensor_msgs::msg::dds_::PointCloud2_.fields_: its DHEADER ends at byte {h6}, its elements at {pos}')
-            t13, t14, t15, t16, = S57.unpack_from(data, pos)
+            t13, t14, t15, t16, = S61.unpack_from(data, pos)
             pos += 16
             if t16 > end - pos: raise truncated('sensor_msgs::msg::dds_::PointCloud2_.data_', t16, pos, end)
             o17 = bytes(data[pos:pos + t16])
@@ -1824,7 +2390,7 @@ def build(E):
                 s30 = str(data[pos:pos + t29 - 1], 'utf-8')
                 pos += t29
                 pos += (4 - pos) & 3
-                t31, t32, t33, = S54.unpack_from(data, pos)
+                t31, t32, t33, = S59.unpack_from(data, pos)
                 pos += 12
                 q28.append(m_sensor_msgs_msg_dds_.PointField_(s30, t31, t32, t33))
             if pos != h27: raise CodecError(f'sensor_msgs::msg::dds_::PointCloud2_.fields_: its DHEADER ends at byte {h27}, its elements at {pos}')
@@ -1883,7 +2449,7 @@ def build(E):
         buf += PADDING[(4 - len(buf)) & 3]
         o4 = octets(v1.additional_payload_size, 'ShapeType.additional_payload_size')
         n5 = len(o4)
-        if n5 > EXTRA_BOUNDS.get(K5, n5): raise OverBound('ShapeType.additional_payload_size', n5, EXTRA_BOUNDS[K5], 'elements')
+        if n5 > EXTRA_BOUNDS.get(K7, n5): raise OverBound('ShapeType.additional_payload_size', n5, EXTRA_BOUNDS[K7], 'elements')
         buf += S48.pack(v1.x, v1.y, v1.shapesize, n5)
         buf += o4
         return bytes(buf)
@@ -1917,7 +2483,7 @@ def build(E):
         buf += PADDING[(4 - len(buf)) & 3]
         o5 = octets(v1.additional_payload_size, 'ShapeType.additional_payload_size')
         n6 = len(o5)
-        if n6 > EXTRA_BOUNDS.get(K5, n6): raise OverBound('ShapeType.additional_payload_size', n6, EXTRA_BOUNDS[K5], 'elements')
+        if n6 > EXTRA_BOUNDS.get(K7, n6): raise OverBound('ShapeType.additional_payload_size', n6, EXTRA_BOUNDS[K7], 'elements')
         buf += S48.pack(v1.x, v1.y, v1.shapesize, n6)
         buf += o5
         U32.pack_into(buf, h2 - 4, len(buf) - h2)
@@ -2003,13 +2569,13 @@ def build(E):
         v2 = v1.stamp_
         s3 = v1.frame_id_
         b4 = s3.encode()
-        buf = bytearray(S55.pack(H1, v2.sec_, v2.nanosec_, len(b4) + 1))
+        buf = bytearray(S56.pack(H1, v2.sec_, v2.nanosec_, len(b4) + 1))
         buf += b4
         buf.append(0)
         return bytes(buf)
 
     def d1_std_msgs_msg_dds__Header_(data, pos, end, views):
-        t1, t2, t3, = S58.unpack_from(data, pos)
+        t1, t2, t3, = S57.unpack_from(data, pos)
         pos += 12
         if not 0 < t3 <= end - pos: raise truncated('std_msgs::msg::dds_::Header_.frame_id_', t3, pos, end)
         if data[pos + t3 - 1]: raise CodecError(f'std_msgs::msg::dds_::Header_.frame_id_: the string at byte {pos} does not end with a NUL')
@@ -2024,7 +2590,7 @@ def build(E):
         v3 = v1.stamp_
         s4 = v1.frame_id_
         b5 = s4.encode()
-        buf += S59.pack(8, v3.sec_, v3.nanosec_, len(b5) + 1)
+        buf += S58.pack(8, v3.sec_, v3.nanosec_, len(b5) + 1)
         buf += b5
         buf.append(0)
         U32.pack_into(buf, h2 - 4, len(buf) - h2)
@@ -2110,6 +2676,9 @@ CODEC_PARTS = {
     m_Vision.VisionSensor: _codec(m_Vision.VisionSensor, 'Vision::VisionSensor', 'Vision_VisionSensor', True, False, {'objects': 'DT1_Vision_VisionObject'}),
     m_automotive.ShapeType: _codec(m_automotive.ShapeType, 'ShapeType', 'ShapeType', True, False, {}),
     m_builtin_interfaces_msg_dds_.Time_: _codec(m_builtin_interfaces_msg_dds_.Time_, 'builtin_interfaces::msg::dds_::Time_', 'builtin_interfaces_msg_dds__Time_', True, False, {}),
+    m_diagnostic_msgs_msg_dds_.KeyValue_: _codec(m_diagnostic_msgs_msg_dds_.KeyValue_, 'diagnostic_msgs::msg::dds_::KeyValue_', 'diagnostic_msgs_msg_dds__KeyValue_', False, False, {}),
+    m_diagnostic_msgs_msg_dds_.DiagnosticStatus_: _codec(m_diagnostic_msgs_msg_dds_.DiagnosticStatus_, 'diagnostic_msgs::msg::dds_::DiagnosticStatus_', 'diagnostic_msgs_msg_dds__DiagnosticStatus_', False, False, {}),
+    m_diagnostic_msgs_msg_dds_.DiagnosticArray_: _codec(m_diagnostic_msgs_msg_dds_.DiagnosticArray_, 'diagnostic_msgs::msg::dds_::DiagnosticArray_', 'diagnostic_msgs_msg_dds__DiagnosticArray_', True, False, {}),
     m_sensor_msgs_msg_dds_.PointField_: _codec(m_sensor_msgs_msg_dds_.PointField_, 'sensor_msgs::msg::dds_::PointField_', 'sensor_msgs_msg_dds__PointField_', False, False, {}),
     m_sensor_msgs_msg_dds_.PointCloud2_: _codec(m_sensor_msgs_msg_dds_.PointCloud2_, 'sensor_msgs::msg::dds_::PointCloud2_', 'sensor_msgs_msg_dds__PointCloud2_', True, True, {}),
     m_shape.ShapeType: _codec(m_shape.ShapeType, 'ShapeType', 'ShapeType__m_shape', True, True, {}),
