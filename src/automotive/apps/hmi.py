@@ -38,6 +38,7 @@ from cyclonedds.core import GuardCondition
 
 from automotive.bus.app import Application, build_parser, run
 from automotive.bus.cli import EXIT_BAD_INPUT
+from automotive.bus.diagnostics import ERROR, OK, Problem
 from automotive.bus.display import NoWindow, open_pygame_display, open_window
 from automotive.bus.ownership import OwnerTracker
 from automotive.bus.properties import PropertyKeys
@@ -294,6 +295,15 @@ def body(app: Application, ui: AlertUI, why_console: str) -> None:
     source = AlertSource()
     view = source.view()
     ui.render(view)
+
+    def health() -> Problem:
+        """For /diagnostics: what the box shows; an error when the alert source is lost."""
+        now = source.view()
+        if now.shown is Shown.LOST:
+            return Problem(ERROR, f"alert source LOST: {source.lost_reason}")
+        return Problem(OK, "; ".join((now.shown.value, *now.texts)))
+
+    app.health_check = health
     app.log.info("HMI: %s alert box%s, waiting for alerts; %s", "window" if window else "console",
                  f" (no window: {why_console})" if why_console else "", view.shown.value)
     waitset = app.waitset(alerts)

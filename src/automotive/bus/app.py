@@ -38,7 +38,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
 from automotive import config, cyclone
-from automotive.bus import badsamples, console, cyclonelog, memtune
+from automotive.bus import badsamples, console, cyclonelog, diagnostics, memtune
 from automotive.bus.cli import (
     EXIT_BAD_INPUT,
     ArgumentParser,
@@ -73,7 +73,8 @@ DEFAULT_OWNERSHIP_STRENGTH = 10
 # role adds topic.<Role> and qos.<Role>.Profile): with the program's own (``run``'s ``keys``), all it may be given.
 RUNTIME_KEYS = PropertyKeys.of(
     "config.domainId", "qos.File", "qos.Library", "qos.Profile", "config.redundant", "config.instanceName",
-    "config.matchReport", "config.mallocTrim", "config.statusInterval", "config.badSampleReport", "config.network",
+    "config.matchReport", "config.mallocTrim", "config.statusInterval", "config.diagnosticsInterval",
+    "config.badSampleReport", "config.network",
     "config.interface", "config.peers", "config.maxParticipants", "config.largeData", "config.ownershipStrength",
     families=[FILTER_PREFIX])
 
@@ -156,6 +157,12 @@ class Application:
         # (``status_figure``); 0 turns it off.
         self.status_interval_s = props.get_float("config.statusInterval", console.STATUS_INTERVAL_S, minimum=0)
         self.status_figure: Callable[[], str] | None = None
+        # Every this many seconds the program's health on ROS 2's /diagnostics (automotive.bus.diagnostics; 0: off).
+        self.diagnostics_interval_s = props.get_float("config.diagnosticsInterval", diagnostics.DEFAULT_INTERVAL_S,
+                                                      minimum=0)
+        # The program's own verdict on its health, for /diagnostics (the HMI's alert source): a level and one line.
+        self.health_check: diagnostics.HealthCheck | None = None
+        self.diagnostics: diagnostics.Diagnostics | None = None
         self.optional_topics: set[str] = set()  # inputs the application does without (reader(..., optional=True))
         self.stats = Stats(getattr(args, "stats", None), self.instance_name)
         # Bad samples from the bus: one line per topic and kind, then a count every config.badSampleReport seconds.
@@ -265,6 +272,9 @@ class Application:
             threading.Thread(target=self._report_status, name="status-line", daemon=True).start()
         if self.malloc_trim_s > 0:
             memtune.PeriodicTrim(self.stop_event, self.malloc_trim_s).start()
+        if self.diagnostics_interval_s > 0:
+            self.diagnostics = diagnostics.Diagnostics(self, self.diagnostics_interval_s, self.log)
+            self.diagnostics.start()
 
     def _report_unmatched(self) -> None:
         if self.stop_event.wait(self.match_report_s):
@@ -339,6 +349,8 @@ class Application:
                 yield None
 
     def close(self) -> None:
+        if self.diagnostics is not None:
+            self.diagnostics.stop()  # its writer goes with the participant
         self.bus.close()
         cyclonelog.uninstall()
         self.reporter.close()  # what is still counted is said now

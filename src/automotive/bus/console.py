@@ -102,21 +102,31 @@ def closed_pipe_handler(log: logging.Logger) -> ClosedPipeHandler | None:
 
 
 class Traffic:
-    """Samples in and out per topic since the last :meth:`rates`; thread-safe (listeners and the main loop count)."""
+    """Samples in and out per topic since the last :meth:`rates`, and since the start (:meth:`totals`, which
+    /diagnostics reads at its own pace); thread-safe (listeners and the main loop count)."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._in: dict[str, int] = {}
         self._out: dict[str, int] = {}
+        self._total_in: dict[str, int] = {}
+        self._total_out: dict[str, int] = {}
 
     def count_in(self, topic: str, samples: int = 1) -> None:
         if samples:
             with self._lock:
                 self._in[topic] = self._in.get(topic, 0) + samples
+                self._total_in[topic] = self._total_in.get(topic, 0) + samples
 
     def count_out(self, topic: str, samples: int = 1) -> None:
         with self._lock:
             self._out[topic] = self._out.get(topic, 0) + samples
+            self._total_out[topic] = self._total_out.get(topic, 0) + samples
+
+    def totals(self) -> tuple[dict[str, int], dict[str, int]]:
+        """The counts since the start (in, out), per topic."""
+        with self._lock:
+            return dict(self._total_in), dict(self._total_out)
 
     def take_counts(self) -> tuple[dict[str, int], dict[str, int]]:
         """The counts since the last call (in, out), and start counting anew."""

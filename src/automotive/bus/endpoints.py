@@ -30,7 +30,7 @@ from automotive.bus.network import NetworkConfig, PeerPlan, user_uri
 from automotive.bus.ports import domain_base, highest_port
 from automotive.bus.qos import QosProfiles
 from automotive.bus.stats import Stats
-from automotive.bus.status import EventHook, StatusListener
+from automotive.bus.status import EventCounts, EventHook, StatusListener
 from automotive.cyclone import bounds, codec_hook, hostonly
 
 T = TypeVar("T")
@@ -109,6 +109,7 @@ class Databus:
         self.subscriber = Subscriber(self.participant)
         self._topics: dict[str, Topic[Any]] = {}
         self._listeners: list[StatusListener] = []
+        self.events = EventCounts()  # the status events of every endpoint, by topic and kind (/diagnostics)
         # Strong references until close(): Cyclone Python deletes an entity when its last Python reference goes,
         # and if that happens inside the entity's own listener callback (a reader's "unmatched" as a writer
         # leaves), the process hangs. Holding them here makes close() the one place they are let go.
@@ -127,7 +128,7 @@ class Databus:
 
     def _listener(self, topic_name: str, hook: EventHook | None, exclusive: bool = False) -> StatusListener:
         listener = StatusListener(topic_name, self.log, hook, exclusive, self.stats,
-                                  self.reporter or badsamples.reporter())
+                                  self.reporter or badsamples.reporter(), self.events)
         self._listeners.append(listener)  # Cyclone keeps only a C reference: keep the Python object alive
         return listener
 

@@ -16,6 +16,13 @@ from automotive.bus.properties import Properties
 WRITER_REPRESENTATION = Policy.DataRepresentation(use_cdrv0_representation=True)
 READER_REPRESENTATION = Policy.DataRepresentation(use_cdrv0_representation=True, use_xcdrv2_representation=True)
 
+# A profile every QoS file has, defined here: ROS 2's default QoS (rmw_qos_profile_default: reliable, volatile, keep
+# last 10), that of /diagnostics (automotive.bus.diagnostics), so that rqt_robot_monitor, Foxglove and any ROS 2 node
+# match it whatever QoS file the programs are given. A profile of the same name in the file takes its place.
+ROS2_DEFAULT_PROFILE = "ROS2Default"
+_ROS2_DEFAULT = (Policy.Reliability.Reliable(max_blocking_time=100_000_000), Policy.Durability.Volatile,
+                 Policy.History.KeepLast(10))
+
 
 def profile_name(props: Properties, role: str) -> str:
     """The QoS profile of an application's endpoint: ``qos.<role>.Profile``, else ``qos.Profile``, else the role."""
@@ -60,16 +67,24 @@ class QosProfiles:
             raise ConfigError(f"{self.path}: no QoS profile '{key}' (available: {', '.join(self.names)})")
         return key
 
+    def _builtin(self, library: str, profile: str) -> bool:
+        """The built-in ROS 2 default profile, which the file does not define itself."""
+        return profile == ROS2_DEFAULT_PROFILE and f"{library}::{profile}" not in self.names
+
     def writer_qos(self, library: str, profile: str) -> DataWriterQos:
+        if self._builtin(library, profile):
+            return DataWriterQos(*_ROS2_DEFAULT, WRITER_REPRESENTATION)
         base = self._provider.get_datawriter_qos(self.key(library, profile))
         return DataWriterQos(WRITER_REPRESENTATION, base=base)
 
     def reader_qos(self, library: str, profile: str) -> DataReaderQos:
+        if self._builtin(library, profile):
+            return DataReaderQos(*_ROS2_DEFAULT, READER_REPRESENTATION)
         base = self._provider.get_datareader_qos(self.key(library, profile))
         return DataReaderQos(READER_REPRESENTATION, base=base)
 
     def has(self, library: str, profile: str) -> bool:
-        return f"{library}::{profile}" in self.names
+        return f"{library}::{profile}" in self.names or profile == ROS2_DEFAULT_PROFILE
 
     def exclusive_writer(self, library: str, profile: str) -> bool:
         """True if the profile's writers have EXCLUSIVE ownership (and so need an ownership strength)."""

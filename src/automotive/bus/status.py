@@ -9,6 +9,8 @@ incompatible QoS come once per remote endpoint and are always logged.
 from __future__ import annotations
 
 import logging
+import threading
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -38,13 +40,65 @@ def policy_name(policy_id: int) -> str:
     return QOS_POLICY_NAMES.get(policy_id, f"policy #{policy_id}")
 
 
+class EventCounts:
+    """How many of each status event every topic of a program had, and when the last one came, with its line (the
+    program's health on /diagnostics: automotive.bus.diagnostics). Thread-safe: listener threads add, another reads."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self.clock = clock
+        self._lock = threading.Lock()
+        self._counts: dict[tuple[str, str], int] = {}
+        self._last: dict[tuple[str, str], tuple[float, str]] = {}
+        self._not_alive: dict[str, str] = {}
+
+    def add(self, topic: str, event: str, message: str, count: int = 1) -> None:
+        with self._lock:
+            self._counts[(topic, event)] = self._counts.get((topic, event), 0) + max(count, 1)
+            self._last[(topic, event)] = (self.clock(), message)
+
+    def count(self, topic: str, *events: str) -> int:
+        with self._lock:
+            return sum(self._counts.get((topic, event), 0) for event in events)
+
+    def recent_events(self, within_s: float, *events: str) -> list[tuple[str, str, str]]:
+        """(topic, event, line) of the latest event of each topic and kind among ``events`` in the last ``within_s``
+        seconds."""
+        since = self.clock() - within_s
+        with self._lock:
+            return [(topic, event, message) for (topic, event), (at, message) in self._last.items()
+                    if event in events and at >= since]
+
+    def liveliness(self, topic: str, not_alive: int, message: str) -> None:
+        """A reader's writers not alive now, and the line that said so."""
+        with self._lock:
+            if not_alive:
+                self._not_alive[topic] = message
+            else:
+                self._not_alive.pop(topic, None)
+
+    def not_alive(self) -> list[str]:
+        """The line of each topic whose reader has a writer not alive now."""
+        with self._lock:
+            return list(self._not_alive.values())
+
+
+def event_count(event: str, status: Any) -> int:
+    """How many events one callback stands for (Cyclone may fold several deadlines or lost samples into one)."""
+    if event in ("offered_deadline_missed", "requested_deadline_missed", "sample_lost", "sample_rejected",
+                 "liveliness_lost"):
+        return int(getattr(status, "total_count_change", 1) or 1)
+    return 1
+
+
 class StatusListener(Listener):
     """Logs matched/unmatched, deadline missed, liveliness, incompatible QoS, sample lost and rejected events."""
 
     def __init__(self, topic_name: str, log: logging.Logger, hook: EventHook | None = None, exclusive: bool = False,
-                 stats: Stats | None = None, reporter: BadSampleReporter | None = None):
+                 stats: Stats | None = None, reporter: BadSampleReporter | None = None,
+                 counts: EventCounts | None = None):
         super().__init__()
         self.stats = stats
+        self.counts = counts  # every event counted by kind, for the program's /diagnostics
         self.topic_name = topic_name
         # Cyclone counts every sample an EXCLUSIVE reader drops because a stronger writer owns the instance as
         # "sample lost": with a hot standby that is each of its samples, by design. Such readers report owner
@@ -55,6 +109,11 @@ class StatusListener(Listener):
         self.reporter = reporter  # rate-limits the REPEATING_EVENTS; None: every event logged
 
     def _report(self, event: str, status: Any, message: str, level: int = logging.INFO) -> None:
+        if self.counts is not None:
+            line = f"[{self.topic_name}] {message}"
+            self.counts.add(self.topic_name, event, line, event_count(event, status))
+            if event == "liveliness_changed":
+                self.counts.liveliness(self.topic_name, status.not_alive_count, line)
         if self.reporter is not None and event in REPEATING_EVENTS:
             self.reporter.repeated_event(self.topic_name, event, message)
         else:
