@@ -20,7 +20,7 @@ from websockets.sync.client import ClientConnection, connect
 
 from automotive.bus.endpoints import Databus
 from automotive.sim.lfsr import FramePattern
-from automotive.tools.flows import system_flows
+from automotive.tools.flows import flows_with_diagnostics
 from automotive.types.CameraImage import CameraImageData
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.types.Vision import VisionSensor
@@ -60,7 +60,7 @@ def test_channels_and_payloads_over_the_foxglove_protocol(apps, bus: Databus, do
     with connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], max_size=None) as client:
         assert client.subprotocol == SUBPROTOCOL
         channels = advertised(client)
-        flows = system_flows()
+        flows = flows_with_diagnostics()  # the system's and every program's /diagnostics
         assert set(channels) == {flow.topic for flow in flows}
         for flow in flows:
             channel = channels[flow.topic]

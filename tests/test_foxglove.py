@@ -30,7 +30,7 @@ from websockets.sync.client import connect
 
 from automotive.bus.endpoints import Databus
 from automotive.sim.lfsr import FramePattern
-from automotive.tools.flows import Flow, system_flows
+from automotive.tools.flows import Flow, flows_with_diagnostics
 from automotive.tools.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, rewrite_request, rewrite_response
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum
@@ -152,7 +152,7 @@ def check_decoded(lines: list[dict[str, Any]], flows: list[Flow], payloads: dict
 def test_foxglove_decodes_every_channel_of_a_recording_and_of_the_bridge(  # type: ignore[no-untyped-def]
         apps, domain_id: int, tmp_path: Path, foxglove: FoxgloveDecoder) -> None:
     domain = ["--domain", str(domain_id)]
-    flows = system_flows()
+    flows = flows_with_diagnostics()  # the system's and every program's health (/diagnostics)
     recording = tmp_path / "drive.mcap"
     recorder = apps.start("record", *domain, "--output", str(recording))
     recorder.wait_for(r"recording \d+ topic", timeout=TIMEOUT)
@@ -228,7 +228,7 @@ def test_the_bridge_accepts_both_subprotocol_names(apps, domain_id: int) -> None
                             ([LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL], SDK_SUBPROTOCOL)):
         with connect(f"ws://127.0.0.1:{port}", subprotocols=offered, max_size=None) as client:
             assert client.subprotocol == chosen
-            assert {flow.topic for flow in system_flows()} == set(advertised(client))
+            assert {flow.topic for flow in flows_with_diagnostics()} == set(advertised(client))
     with pytest.raises(InvalidStatus, match="HTTP 400"):  # the SDK's own answer to a client of another protocol
         connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.websocket.v2"])
     with connect(f"ws://127.0.0.1:{port}", subprotocols=[LEGACY_SUBPROTOCOL]) as client:

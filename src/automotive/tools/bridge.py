@@ -1,13 +1,14 @@
 """Live view: a Foxglove WebSocket server that forwards every flow of the databus, as received, to the Foxglove app.
 
-Data flow:  every topic of the system (automotive.tools.flows; --topics to choose), each read with the reader side of
-its writer's QoS profile keeping only the newest sample  -->  serialized samples, never deserialized
+Data flow:  every topic of the system and rt/diagnostics (automotive.tools.flows; --topics to choose), each read with
+the reader side of its writer's QoS profile keeping only the newest sample  -->  serialized samples, never deserialized
 (automotive.wire.rawsample)  -->  one Foxglove channel per topic (message encoding ``cdr``, the recorder's schemas)  -->
 the Foxglove WebSocket server (foxglove-sdk, on a private loopback port)  -->  a front on ws://HOST:PORT that also
 accepts the protocol's older subprotocol name (automotive.tools.wsrelay)
 
 Open it in Foxglove with "Open connection" > "Foxglove WebSocket" > ws://127.0.0.1:8765. The LiDAR cloud shows in
-the 3D panel, every other flow in the Raw Messages and Plot panels. A viewer must never slow the databus: its readers
+the 3D panel, every other flow in the Raw Messages and Plot panels, and every program's health (rt/diagnostics, ROS 2's
+/diagnostics: automotive.bus.diagnostics) in the Diagnostics panels. A viewer must never slow the databus: its readers
 keep only the newest sample of each instance (a reliable writer is never held back by the bridge), and each client
 gets at most config.backlog messages queued (the oldest dropped first), so a slow or stuck client costs bounded
 memory. Disposals and unregistrations are not forwarded (a Foxglove channel carries samples of one type).
@@ -26,7 +27,7 @@ from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
-from automotive.tools.flows import Flow, channel_metadata, select, system_flows
+from automotive.tools.flows import Flow, channel_metadata, flows_with_diagnostics, select
 from automotive.tools.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, SubprotocolRelay
 from automotive.wire.filteredraw import filtered_raw_reader
 from automotive.wire.rawsample import SampleKind
@@ -62,7 +63,7 @@ def foxglove_channel(app: Application, flow: Flow) -> foxglove.Channel:
 
 
 def body(app: Application) -> None:
-    flows = select(system_flows(app.props.folder), app.args.topics)
+    flows = select(flows_with_diagnostics(app.props.folder), app.args.topics)
     backlog = app.props.get_int("config.backlog", 16, minimum=1)
     port: int = app.args.port
     if not 0 <= port <= 65535:

@@ -7,6 +7,10 @@ flow's MCAP/Foxglove schema is what Foxglove, ``rosbags`` and rosbag2 decode CDR
 ``sensor_msgs/msg/PointCloud2`` (``ros2msg``), every other type as OMG IDL (``omgidl``: the project's IDL text and the
 type's scoped name). Channel metadata carries the writer's QoS as rosbag2 writes it (``offered_qos_profiles``) and the
 DDS topic and type names.
+
+The recorder and the live bridge also carry every program's health, ROS 2's /diagnostics (``rt/diagnostics``, the
+ROS 2 message ``diagnostic_msgs/msg/DiagnosticArray``: automotive.bus.diagnostics), which is no application's data
+flow: the replayer and the Zenoh site bridge leave it out.
 """
 
 from __future__ import annotations
@@ -19,12 +23,14 @@ from typing import Any
 from cyclonedds.qos import DataWriterQos
 
 from automotive import config
+from automotive.bus.diagnostics import DIAGNOSTICS_TOPIC, ROS2_TYPE
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import Properties
-from automotive.bus.qos import profile_name
+from automotive.bus.qos import ROS2_DEFAULT_PROFILE, profile_name
 from automotive.cyclone.bounds import type_name  # re-exported: the name tools and tests use
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.automotive import ShapeType
+from automotive.types.diagnostic_msgs.msg.dds_ import DiagnosticArray_
 from automotive.types.Platform import PlatformControl, PlatformStatus
 from automotive.types.Sensor import SensorObjectList
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
@@ -32,6 +38,8 @@ from automotive.types.Vision import VisionSensor
 from automotive.wire.camera import frame_type
 
 ROS2_POINTCLOUD = "sensor_msgs/msg/PointCloud2"
+# The types whose schema is the ROS 2 message (``ros2msg``), which Foxglove's ROS panels (Diagnostics) recognise.
+ROS2_MESSAGES: dict[type[Any], str] = {PointCloud2_: ROS2_POINTCLOUD, DiagnosticArray_: ROS2_TYPE}
 
 
 @dataclass(frozen=True)
@@ -82,11 +90,12 @@ class Flow:
 
 @cache
 def schema_of(data_type: type[Any]) -> Schema:
-    if data_type is PointCloud2_:
+    ros2_name = ROS2_MESSAGES.get(data_type)
+    if ros2_name is not None:
         from rosbags.typesys import Stores, get_typestore
 
-        definition, _ = get_typestore(Stores.ROS2_HUMBLE).generate_msgdef(ROS2_POINTCLOUD, ros_version=2)
-        return Schema(ROS2_POINTCLOUD, "ros2msg", definition.encode())
+        definition, _ = get_typestore(Stores.ROS2_HUMBLE).generate_msgdef(ros2_name, ros_version=2)
+        return Schema(ros2_name, "ros2msg", definition.encode())
     return Schema(type_name(data_type), "omgidl", config.idl_file().read_bytes())
 
 
@@ -105,6 +114,16 @@ def system_flows(properties_dir: Path | None = None) -> list[Flow]:
                                                    f"{props.source}: config.imageSize")
         flows.append(Flow(topic, data_type, profile))
     return flows
+
+
+def diagnostics_flow() -> Flow:
+    """Every program's health, ROS 2's /diagnostics, with ROS 2's default QoS (a profile of every QoS file)."""
+    return Flow(DIAGNOSTICS_TOPIC, DiagnosticArray_, ROS2_DEFAULT_PROFILE)
+
+
+def flows_with_diagnostics(properties_dir: Path | None = None) -> list[Flow]:
+    """What the recorder and the live bridge carry: the system's flows and /diagnostics."""
+    return [*system_flows(properties_dir), diagnostics_flow()]
 
 
 def select(flows: list[Flow], topics: str | None, option: str = "--topics") -> list[Flow]:

@@ -1,9 +1,9 @@
 """Recorder: every flow of the running system, as received, into an MCAP file (the format of rosbag2 and Foxglove).
 
-Data flow:  every topic of the system (automotive.tools.flows; --topics to choose), each read with the reader side of
-its writer's QoS profile and a history that keeps every sample  -->  serialized samples, never deserialized
-(automotive.wire.rawsample)  -->  a bounded queue  -->  the writer thread: MCAP chunks (compressed with
-config.compression=lz4|zstd; none by default), on disk every second  -->  --output FILE
+Data flow:  every topic of the system and every program's health, rt/diagnostics (automotive.tools.flows; --topics to
+choose), each read with the reader side of its writer's QoS profile and a history that keeps every sample  -->
+serialized samples, never deserialized (automotive.wire.rawsample)  -->  a bounded queue  -->  the writer thread:
+MCAP chunks (compressed with config.compression=lz4|zstd; none by default), on disk every second  -->  --output FILE
 
 The file: MCAP profile ``ros2``, one channel per topic, message encoding ``cdr``: the bytes exactly as received
 (encapsulation header included); log time = reception, publish time = the writer's source timestamp; disposals and
@@ -47,7 +47,7 @@ from automotive.bus.cli import output_file
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
-from automotive.tools.flows import Flow, channel_metadata, select, system_flows
+from automotive.tools.flows import Flow, channel_metadata, flows_with_diagnostics, select
 from automotive.wire.filteredraw import FilteredRawReader, filtered_raw_reader
 from automotive.wire.rawsample import RawSample, SampleKind
 
@@ -435,7 +435,7 @@ def open_output(path: Path, overwrite: bool) -> OutputFile:
 
 
 def body(app: Application) -> None:
-    flows = select(system_flows(app.props.folder), app.args.topics)
+    flows = select(flows_with_diagnostics(app.props.folder), app.args.topics)
     if app.args.duration is not None and app.args.duration <= 0:
         raise ConfigError(f"--duration {app.args.duration:g}: expected a number of seconds above 0")
     compression = app.props.get_choice("config.compression", list(COMPRESSIONS), "none")

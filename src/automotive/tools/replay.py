@@ -27,6 +27,7 @@ from mcap.reader import SeekingReader
 
 from automotive.bus.app import Application, run
 from automotive.bus.badsamples import BadSample
+from automotive.bus.diagnostics import DIAGNOSTICS_TOPIC
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
@@ -108,7 +109,11 @@ def body(app: Application) -> None:
             flow, kind = flow_of(channel, known)
             schema = summary.schemas.get(channel.schema_id)
             if flow is None:
-                app.log.info("channel %s: not a topic of the system, skipped", channel.topic)
+                if channel.topic == DIAGNOSTICS_TOPIC:  # the health of the recorded programs, not theirs to replay
+                    app.log.info("channel %s: the recorded programs' health (/diagnostics), not replayed",
+                                 channel.topic)
+                else:
+                    app.log.info("channel %s: not a topic of the system, skipped", channel.topic)
                 continue
             if schema is None or schema.name != flow.schema.name or channel.message_encoding != "cdr":
                 app.log.info("channel %s: schema %s (%s) is not %s's (%s), skipped", channel.topic,
