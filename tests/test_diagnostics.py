@@ -1,0 +1,251 @@
+"""Every program's health on ROS 2's /diagnostics (automotive.bus.diagnostics), read as ROS 2's tools read it.
+
+A running program's DiagnosticArray is taken off the DDS topic rt/diagnostics by a plain Cyclone reader with ROS 2's
+default QoS and XCDR1 only (what rqt_robot_monitor's rmw creates) and decoded by an independent ROS 2 implementation
+(rosbags' Humble type store), never by our own types; its level follows what the program needs (the HMI warns while
+its alert reader has no writer, is OK once one matched, and an error once the source is lost); a recording holds the
+statuses of every program that rosbags, mcap and Foxglove's libraries read; the Foxglove bridge serves them as a
+channel that Foxglove's own decoders decode (tests/foxglove/decode.js). The judging itself (automotive.bus.diagnostics
+.assess) is checked without DDS."""
+
+from __future__ import annotations
+
+import json
+import signal
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from cyclonedds._clayer import ddspy_take
+from cyclonedds.core import InstanceState, SampleState, ViewState
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from dds_helpers import wait_until
+from foxglove_node import FoxgloveDecoder, install, json_lines
+from mcap.reader import make_reader
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+from test_bridge import start_bridge
+
+from automotive.bus.diagnostics import ERROR, OK, WARN, EndpointState, Problem, assess
+from automotive.bus.endpoints import Databus
+from automotive.types.Alerts import DriverAlerts
+from automotive.types.diagnostic_msgs.msg.dds_ import DiagnosticArray_
+
+TIMEOUT = 60.0
+ROS2_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
+DDS_TYPE = "diagnostic_msgs::msg::dds_::DiagnosticArray_"
+# What a ROS 2 node subscribing to /diagnostics with the default QoS creates (rclcpp's default: reliable, volatile,
+# keep last 10); XCDR1 only, as ROS 2's middlewares read.
+ROS2_READER = Qos(Policy.Reliability.Reliable(0), Policy.Durability.Volatile, Policy.History.KeepLast(10),
+                  Policy.DataRepresentation(use_cdrv0_representation=True))
+STORE = get_typestore(Stores.ROS2_HUMBLE)
+
+
+class DiagnosticsReader:
+    """A plain Cyclone participant reading rt/diagnostics; every sample decoded by rosbags."""
+
+    def __init__(self, domain_id: int):
+        self.participant = DomainParticipant(domain_id)
+        self.reader = DataReader(self.participant, Topic(self.participant, "rt/diagnostics", DiagnosticArray_),
+                                 qos=ROS2_READER)
+        self.raw: list[bytes] = []
+
+    def take(self) -> list[Any]:
+        taken = ddspy_take(self.reader._ref, SampleState.Any | ViewState.Any | InstanceState.Any, 64)
+        raw = [bytes(data) for data, info in taken if info.valid_data]
+        self.raw.extend(raw)
+        return [STORE.deserialize_cdr(data, ROS2_TYPE) for data in raw]
+
+    def status_of(self, name: str, condition: Callable[[Any], bool] = lambda status: True,
+                  timeout: float = TIMEOUT, what: str = "") -> Any:
+        """The first status of program ``name`` that meets ``condition`` (polled, bounded)."""
+        seen: list[str] = []
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for array in self.take():
+                for status in array.status:
+                    if status.name == name:
+                        seen.append(f"{status.level}: {status.message}")
+                        if condition(status):
+                            return status
+            time.sleep(0.05)
+        raise AssertionError(f"no status of {name} {what} in {timeout:.0f} s; seen: {seen[-5:]}")
+
+    def close(self) -> None:
+        self.participant.__del__()
+
+
+@pytest.fixture
+def diagnostics(domain_id: int) -> Iterator[DiagnosticsReader]:
+    """The reader, in the domain of the test (joining the test's ``bus`` when the test asks for it first)."""
+    reader = DiagnosticsReader(domain_id)
+    try:
+        yield reader
+    finally:
+        reader.close()
+
+
+def values(status: Any) -> dict[str, str]:
+    return {pair.key: pair.value for pair in status.values}
+
+
+def test_a_running_application_reports_once_a_second_as_ros2_reads_it(  # type: ignore[no-untyped-def]
+        apps, domain_id: int, diagnostics: DiagnosticsReader) -> None:
+    vision = apps.start("vision", "--domain", str(domain_id))
+    wait_until(lambda: len(diagnostics.reader.get_matched_publications()) == 1, TIMEOUT, "the vision's diagnostics")
+    [handle] = diagnostics.reader.get_matched_publications()
+    writer = diagnostics.reader.get_matched_publication_data(handle)
+    assert writer.type_name == DDS_TYPE
+    assert Policy.Reliability.Reliable in writer.qos and Policy.Durability.Volatile in writer.qos
+    first = diagnostics.status_of("vision", lambda status: float(values(status)["VisionTopic out/s"]) > 0,
+                                  what="with samples out")
+    second = diagnostics.status_of("vision", what="after the first")
+    assert all(data[:4] == b"\x00\x01\x00\x00" for data in diagnostics.raw)  # XCDR1 little endian, as ROS 2 writes
+    arrays = [STORE.deserialize_cdr(data, ROS2_TYPE) for data in diagnostics.raw]
+    stamps = [array.header.stamp.sec + array.header.stamp.nanosec / 1e9 for array in arrays]
+    assert all(abs(stamp - time.time()) < 60 for stamp in stamps)
+    assert all(len(array.status) == 1 for array in arrays)
+    assert 0.5 < stamps[-1] - stamps[-2] < 2.0, stamps  # once a second
+
+    # The vision writes and reads nothing it needs: OK, with the console's status words.
+    for status in (first, second):
+        assert status.level == OK == 0 and status.hardware_id, status
+    assert first.message.startswith("out VisionTopic "), first.message
+    assert "object(s)" in first.message  # its key figure, as on its status line
+    figures = values(first)
+    assert float(figures["VisionTopic out/s"]) > 0
+    assert figures["VisionTopic writer matched readers"] == "0"
+    assert figures["VisionTopic deadline missed"] == figures["bad samples"] == "0"
+    assert float(figures["RSS MB"]) > 10 and float(figures["CPU %"]) >= 0
+    assert figures["pid"] == str(vision.pid) and figures["domain"] == str(domain_id)
+    assert "object(s)" in figures["figure"]
+    # The report is in no status line and no match report: no console line of its own.
+    assert "diagnostics" not in vision.output, vision.output
+
+
+def test_the_hmi_warns_without_an_alert_writer_is_ok_with_one_and_errs_when_it_is_lost(  # type: ignore[no-untyped-def]
+        apps, bus: Databus, domain_id: int, diagnostics: DiagnosticsReader) -> None:
+    hmi = apps.start("hmi", "--domain", str(domain_id), "--ui", "console", "-D", "config.matchReport=1")
+    warned = diagnostics.status_of("hmi", lambda status: status.level == WARN, what="at WARN")
+    assert warned.message == "[AlertTopic] reader: no writer matched", warned.message
+    assert values(warned)["AlertTopic reader matched writers"] == "0"
+
+    # Collision avoidance's side: an alert writer with its profile, in a participant that leaves.
+    source = DomainParticipant(domain_id)
+    try:
+        alerts = DataWriter(source, Topic(source, "AlertTopic", DriverAlerts), qos=bus.profiles.writer_qos(
+            bus.library, "HMI"))
+        wait_until(lambda: bool(alerts.get_matched_subscriptions()), TIMEOUT, "the HMI's alert reader")
+        alerts.write(DriverAlerts(False, False, False, False, False, False))
+        ok = diagnostics.status_of("hmi", lambda status: status.level == OK and "all clear" in status.message,
+                                   what="OK and all clear")
+        assert values(ok)["AlertTopic reader matched writers"] == "1"
+        assert float(values(ok)["AlertTopic in/s"]) >= 0
+    finally:
+        source.__del__()  # the writer leaves: the source is lost
+    lost = diagnostics.status_of("hmi", lambda status: status.level == ERROR, what="at ERROR")
+    assert lost.message.startswith("alert source LOST: "), lost.message
+    hmi.wait_for(r"alert source LOST", timeout=TIMEOUT)
+    assert "diagnostics" not in hmi.output
+
+
+def test_a_recording_holds_every_programs_diagnostics_for_rosbags_mcap_and_foxglove(  # type: ignore[no-untyped-def]
+        apps, domain_id: int, tmp_path: Path) -> None:
+    recording = tmp_path / "health.mcap"
+    recorder = apps.start("record", "--domain", str(domain_id), "--output", str(recording),
+                          "--topics", "rt/diagnostics")
+    recorder.wait_for(r"recording 1 topic", timeout=TIMEOUT)
+    apps.start("vehicle_platform", "--domain", str(domain_id))
+    recorder.wait_for(r"\[rt/diagnostics\] reader matched a writer", count=2, timeout=TIMEOUT)  # its own, the app's
+    recorder.wait_for(r" rt/diagnostics=([4-9]|\d\d+)/", timeout=TIMEOUT)
+    assert recorder.stop(signal.SIGINT) == 0, recorder.output[-3000:]
+
+    with open(recording, "rb") as stream:
+        reader = make_reader(stream)
+        summary = reader.get_summary()
+        assert summary is not None
+        [schema] = summary.schemas.values()
+        assert (schema.name, schema.encoding) == (ROS2_TYPE, "ros2msg")
+        [channel] = summary.channels.values()
+        assert (channel.topic, channel.metadata["dds_type"]) == ("rt/diagnostics", DDS_TYPE)
+        assert "reliability: 1" in channel.metadata["offered_qos_profiles"]  # reliable
+        assert "depth: 10" in channel.metadata["offered_qos_profiles"]
+    with AnyReader([recording]) as bag:
+        names = [status.name for connection, _, raw in bag.messages()
+                 for status in bag.deserialize(raw, connection.msgtype).status]
+    assert {"record", "vehicle_platform"} <= set(names), names
+
+    lines = FoxgloveDecoder(install()).run("mcap", str(recording), timeout=TIMEOUT)
+    assert not [line for line in lines if "error" in line], lines[:3]
+    decoded = [line["value"] for line in lines if line["kind"] == "message"]
+    assert len(decoded) == len(names)
+    platform = next(value["status"][0] for value in decoded if value["status"][0]["name"] == "vehicle_platform")
+    assert platform["level"] in (OK, WARN) and platform["hardware_id"] and platform["message"]
+    assert any(pair["key"] == "PlatformStatus out/s" for pair in platform["values"]), json.dumps(platform)
+
+
+def test_the_foxglove_bridge_serves_diagnostics_that_foxgloves_decoders_read(  # type: ignore[no-untyped-def]
+        apps, domain_id: int) -> None:
+    foxglove = FoxgloveDecoder(install())
+    bridge, port = start_bridge(apps, domain_id, "--topics", "rt/diagnostics")
+    client = apps.start_command("decode.js ws", foxglove.command("ws", f"ws://127.0.0.1:{port}"), env=foxglove.env)
+    client.wait_for(r'"kind":"open"', timeout=TIMEOUT)
+    bridge.wait_for(r"client \d+ subscribed to rt/diagnostics", timeout=TIMEOUT)
+    client.wait_for(r'"kind":"message","topic":"rt/diagnostics".*"name":"bridge"', timeout=TIMEOUT)
+    assert client.stop(signal.SIGTERM) == 0, client.output[-3000:]
+    lines = json_lines(client.lines)
+    assert not [line for line in lines if "error" in line], lines[:3]
+    [channel] = [line for line in lines if line["kind"] == "channel"]
+    assert (channel["topic"], channel["schemaName"], channel["schemaEncoding"]) == ("rt/diagnostics", ROS2_TYPE,
+                                                                                   "ros2msg")
+    message = next(line for line in lines if line["kind"] == "message")
+    [status] = message["value"]["status"]
+    assert status["name"] == "bridge" and status["level"] in (OK, WARN) and status["message"]
+    assert {"RSS MB", "CPU %", "rt/diagnostics reader matched writers"} <= {pair["key"] for pair in status["values"]}
+
+
+def test_diagnostics_interval_is_a_property_and_bad_values_are_one_line(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
+    off = apps.run("vision", "--domain", str(domain_id), "--count", "2", "-D", "config.diagnosticsInterval=0",
+                   timeout=TIMEOUT)
+    assert off.returncode == 0, off.stdout + off.stderr
+    bad = apps.run("vision", "--domain", str(domain_id), "-D", "config.diagnosticsInterval=-1", timeout=TIMEOUT)
+    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.stdout + bad.stderr
+    assert "config.diagnosticsInterval" in bad.stderr
+
+
+# -- the judging, without DDS ------------------------------------------------------------------------------------------
+
+READER = EndpointState("AlertTopic", reader=True, matched=0)
+CIRCLE = EndpointState("Circle", reader=True, matched=0)
+WRITER = EndpointState("PlatformControl", reader=False, matched=0)
+
+
+def test_an_unmatched_reader_warns_only_after_the_grace_and_unless_optional() -> None:
+    assert assess([READER, WRITER], set(), False, [], [], 0, None) == []
+    assert assess([READER, CIRCLE, WRITER], {"Circle"}, True, [], [], 0, None) == [
+        Problem(WARN, "[AlertTopic] reader: no writer matched")]  # a writer with no reader is no problem
+    matched = EndpointState("AlertTopic", reader=True, matched=1)
+    assert assess([matched], set(), True, [], [], 0, None) == []
+
+
+def test_the_worst_comes_first_and_an_incompatible_qos_says_why_a_reader_has_no_writer() -> None:
+    recent = [("AlertTopic", "requested_incompatible_qos",
+               "[AlertTopic] incompatible QoS requested from a writer: DURABILITY"),
+              ("VisionTopic", "requested_deadline_missed",
+               "[VisionTopic] requested deadline missed: no data in time (total 3)")]
+    problems = assess([READER], set(), True, recent, ["[SensorObjects] liveliness LOST of a writer (0 alive, 1 not "
+                                                      "alive)"], 2, Problem(ERROR, "alert source LOST: it left"))
+    assert problems == [
+        Problem(ERROR, "alert source LOST: it left"),
+        Problem(WARN, "[AlertTopic] reader: no writer matched (incompatible QoS requested from a writer: DURABILITY)"),
+        Problem(WARN, "[SensorObjects] liveliness LOST of a writer (0 alive, 1 not alive)"),
+        Problem(WARN, "[VisionTopic] requested deadline missed: no data in time (total 3)"),
+        Problem(WARN, "2 bad sample(s) ignored in the last 5 s"),
+    ]
+    assert assess([], set(), True, [], [], 0, Problem(OK, "all clear")) == []  # an OK verdict is no problem
