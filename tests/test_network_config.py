@@ -67,22 +67,23 @@ def effective(trace: Path, setting: str) -> list[str]:
 # -- domain ids and participant indexes ---------------------------------------------------------------------------
 
 def test_every_port_of_every_index_stays_inside_its_domain() -> None:
-    assert (ports.MAX_PARTICIPANT_INDEX, ports.MAX_PARTICIPANTS, ports.MAX_DOMAIN_ID) == (119, 120, 231)
+    assert (ports.MAX_PARTICIPANT_INDEX, ports.MAX_PARTICIPANTS, ports.MAX_DOMAIN_ID) == (119, 119, 231)
     for domain in (0, 1, 100, 230):
         assert ports.highest_port(domain) < ports.domain_base(domain + 1)
         # index 120 would be the next domain's discovery multicast port: the one the old default reached
         assert ports.discovery_unicast_port(domain, ports.MAX_PARTICIPANT_INDEX + 1) == ports.domain_base(domain + 1)
     assert ports.highest_port(231) <= 65535 < ports.highest_port(232)
     assert "<MaxAutoParticipantIndex>119</MaxAutoParticipantIndex>" in NetworkConfig().cyclone_xml()
-    assert "<MaxAutoParticipantIndex>29</MaxAutoParticipantIndex>" in NetworkConfig(max_participants=30).cyclone_xml()
+    # Cyclone takes indexes 0..MaxAutoParticipantIndex - 1: 30 participants need 30 (and probe index 30 too)
+    assert "<MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>" in NetworkConfig(max_participants=30).cyclone_xml()
 
 
-@pytest.mark.parametrize("count", [0, 121, 500])
+@pytest.mark.parametrize("count", [0, 120, 500])
 def test_more_participant_indexes_than_a_domain_has_are_refused(count: int) -> None:
     with pytest.raises(ConfigError, match=rf"^app.properties: config.maxParticipants = {count} is out of range "
-                                          r"\(expected 1..120\)$"):
+                                          r"\(expected 1..119\)$"):
         NetworkConfig.from_settings(max_participants=count, source="app.properties")
-    with pytest.raises(ConfigError, match=r"expected 1..120"):
+    with pytest.raises(ConfigError, match=r"expected 1..119"):
         NetworkConfig(max_participants=count)  # made in code (the benchmarks): refused too
 
 
@@ -129,9 +130,9 @@ def test_every_way_of_giving_a_domain_refuses_232_with_the_same_words(apps) -> N
 
 
 def test_the_participant_limit_is_one_line_naming_the_key(apps) -> None:  # type: ignore[no-untyped-def]
-    result = apps.run("vision", "-D", "config.maxParticipants=121", timeout=TIMEOUT)
-    assert_one_line_error(result, r"^automotive-vision: -D: config.maxParticipants = 121 is out of range "
-                                  r"\(expected 1..120\)$")
+    result = apps.run("vision", "-D", "config.maxParticipants=120", timeout=TIMEOUT)
+    assert_one_line_error(result, r"^automotive-vision: -D: config.maxParticipants = 120 is out of range "
+                                  r"\(expected 1..119\)$")
 
 
 # -- a user's CYCLONEDDS_URI ------------------------------------------------------------------------------------

@@ -94,7 +94,7 @@ def test_network_configurations() -> None:
     assert "PruneDelay=" not in xml and "<InitialLocatorPruneDelay>inf<" in xml
     # RTI answers a participant of its own host through 127.0.0.1: Cyclone must not drop what arrives on lo
     assert "<ExtendedPacketInfo>false</ExtendedPacketInfo>" in xml
-    assert "<MaxAutoParticipantIndex>29</MaxAutoParticipantIndex>" in xml
+    assert "<MaxAutoParticipantIndex>30</MaxAutoParticipantIndex>" in xml
     assert "<SPDPInterval>1s</SPDPInterval>" in xml
     # without an interface, the one on the route to the first other host
     unnamed = NetworkConfig.from_settings(peers=["10.0.0.2"])

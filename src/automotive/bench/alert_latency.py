@@ -69,6 +69,7 @@ from automotive.bus.cli import (
 )
 from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
+from automotive.bus.ports import MAX_PARTICIPANTS
 from automotive.cyclone.codecs import codec_for
 from automotive.tools.children import Child, program_command, stop_all, work_folder
 from automotive.types.Alerts import DriverAlerts
@@ -215,7 +216,7 @@ def run_one(sensors: int, objects: int, window: float, domain: int, timeout: flo
 def measure(sensors: int, objects: int, window: float, domain: int, timeout: float, log_dir: Path | None, mode: str,
             vision_interval_ms: int, workdir: Path) -> Result:
     env = dict(os.environ)
-    env["CYCLONEDDS_URI"] = NetworkConfig(max_participants=max(100, sensors + 20)).cyclone_xml()
+    env["CYCLONEDDS_URI"] = NetworkConfig(max_participants=min(MAX_PARTICIPANTS, max(100, sensors + 20))).cyclone_xml()
     csv = workdir / "vision.csv"
     vision_csv(csv, objects)
     common = ["--domain", str(domain), "-D", "config.matchReport=0"]

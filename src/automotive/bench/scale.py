@@ -36,6 +36,7 @@ from pathlib import Path
 
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.network import NetworkConfig
+from automotive.bus.ports import MAX_PARTICIPANTS
 from automotive.tools.children import StatsChild, stop_all, work_folder
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE
 
@@ -183,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
     for n in sizes:
         env = dict(os.environ)
         # Loopback only; every participant on the host needs an index: N sensors, fusion, and some room.
-        env["CYCLONEDDS_URI"] = NetworkConfig(max_participants=max(100, n + 20)).cyclone_xml()
+        env["CYCLONEDDS_URI"] = NetworkConfig(max_participants=min(MAX_PARTICIPANTS, max(100, n + 20))).cyclone_xml()
         print(f"{PROG}: N = {n} ...", file=sys.stderr, flush=True)
         try:
             rows.append(run_one(n, args.domain, args.window, env, args.timeout, args.log_dir, args.stagger))

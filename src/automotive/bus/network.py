@@ -86,8 +86,9 @@ LAN = "lan"
 PEERS = "peers"
 MODES = (LOOPBACK, LAN, PEERS)
 
-# Every participant on a host takes a participant index (a port); unicast discovery probes this many per peer:
-# indexes 0..119, the most whose ports stay inside the domain (automotive.bus.ports).
+# Every participant on a host takes a participant index (a port): at most this many participants per host, indexes
+# 0..118; unicast discovery probes one index more per peer, 0..119, the most whose ports stay inside the domain
+# (automotive.bus.ports).
 DEFAULT_MAX_PARTICIPANTS = MAX_PARTICIPANTS
 # Large samples (camera frames): 62000-byte fragments in datagrams of up to 65500 bytes instead of Cyclone's
 # 1344-byte fragments (68 datagrams per 4 MiB frame instead of 3121), and socket buffers as large as the kernel
@@ -180,7 +181,8 @@ class NetworkConfig:
     mode: str = LOOPBACK
     interface: str = ""  # "" lets Cyclone choose (LAN and peers modes)
     peers: tuple[str, ...] = field(default_factory=tuple)
-    # Participant indexes 0..max_participants - 1 (Cyclone's MaxAutoParticipantIndex is the last one).
+    # Participants per host: indexes 0..max_participants - 1 taken, 0..max_participants probed (Cyclone's
+    # MaxAutoParticipantIndex; automotive.bus.ports says why one more).
     max_participants: int = DEFAULT_MAX_PARTICIPANTS
     large_data: bool = False
     fragment_size: int = LARGE_DATA_FRAGMENT_SIZE
@@ -206,7 +208,7 @@ class NetworkConfig:
         # Also for configurations made in code (the benchmarks): an index past the last would probe another domain.
         if not 1 <= self.max_participants <= MAX_PARTICIPANTS:
             raise ConfigError(f"max participants {self.max_participants}: expected 1..{MAX_PARTICIPANTS} (participant "
-                              f"indexes 0..{MAX_PARTICIPANT_INDEX} keep every port inside the domain)")
+                              f"indexes probed up to {MAX_PARTICIPANT_INDEX} keep every port inside the domain)")
 
     @classmethod
     def from_settings(cls, network: str = "", interface: str = "", peers: list[str] | None = None,
@@ -309,7 +311,7 @@ class NetworkConfig:
 
     def _participant_index_elements(self) -> list[tuple[str, str]]:
         return [("Discovery/ParticipantIndex", _text("ParticipantIndex", "auto")),
-                ("Discovery/MaxAutoParticipantIndex", _text("MaxAutoParticipantIndex", self.max_participants - 1))]
+                ("Discovery/MaxAutoParticipantIndex", _text("MaxAutoParticipantIndex", self.max_participants))]
 
     def describe(self) -> str:
         if self.network_from_user:

@@ -28,7 +28,11 @@ HIGHEST_PORT = 65535
 
 # The largest index whose ports all stay below the next domain's base: D3 + PG * index < DG.
 MAX_PARTICIPANT_INDEX = (DOMAIN_GAIN - USER_UNICAST_OFFSET - 1) // PARTICIPANT_GAIN  # 119
-MAX_PARTICIPANTS = MAX_PARTICIPANT_INDEX + 1  # indexes 0..119
+# Cyclone 11 probes participant indexes 0..MaxAutoParticipantIndex but takes only 0..MaxAutoParticipantIndex - 1
+# (its search for a free index stops one past the index it found, and refuses the last one: "Failed to find a free
+# participant index"). So a host holds MaxAutoParticipantIndex participants, and MaxAutoParticipantIndex, the
+# highest index probed, stops at MAX_PARTICIPANT_INDEX.
+MAX_PARTICIPANTS = MAX_PARTICIPANT_INDEX  # 119: indexes 0..118 taken, 0..119 probed
 # The largest domain whose highest port (user unicast of index MAX_PARTICIPANT_INDEX) fits in 16 bits.
 MAX_DOMAIN_ID = (HIGHEST_PORT - PORT_BASE - USER_UNICAST_OFFSET - PARTICIPANT_GAIN * MAX_PARTICIPANT_INDEX) \
     // DOMAIN_GAIN  # 231
