@@ -35,9 +35,11 @@ class AppRunner:
         return process
 
     def start_command(self, name: str, command: list[str], env: dict[str, str] | None = None,
-                      stdin: bool = False) -> Child:
-        """Start any command (stopped at the end like the applications); ``name`` labels its failures."""
-        process = Child(name, command, cwd=self.root, env={**os.environ, **(env or {})}, stdin=stdin)
+                      stdin: bool = False, separate_stderr: bool = False) -> Child:
+        """Start any command (stopped at the end like the applications); ``name`` labels its failures;
+        ``separate_stderr``: its lines are stdout's only (a program whose library logs to stderr in pieces)."""
+        process = Child(name, command, cwd=self.root, env={**os.environ, **(env or {})}, stdin=stdin,
+                        separate_stderr=separate_stderr)
         self.processes.append(process)
         return process
 

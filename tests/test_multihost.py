@@ -69,9 +69,10 @@ class TwoHosts:
     domain_id: int
     processes: list[CommandProcess] = field(default_factory=list)
 
-    def start(self, host: Host, name: str, command: list[str], stdin: bool = False) -> CommandProcess:
+    def start(self, host: Host, name: str, command: list[str], stdin: bool = False,
+              separate_stderr: bool = False) -> CommandProcess:
         return self.runner.start_command(f"{name}@{host.namespace}", ["ip", "netns", "exec", host.namespace, *command],
-                                         stdin=stdin)
+                                         stdin=stdin, separate_stderr=separate_stderr)
 
     def app(self, host: Host, name: str, *args: str, peers: str = PEERS) -> CommandProcess:
         return self.start(host, name, program_command(name, "--domain", str(self.domain_id), "--peers", peers,
@@ -232,7 +233,7 @@ def test_rti_participant_whose_initial_peers_name_only_the_other_host(hosts: Two
         "--initial-peers", ADDRESS_A,
         "--read", "Vision,SensorObjects,PlatformStatus,PlatformControl,Alerts:ReliableReader",
         "--write", 'Vision={"id": 42}', "--write", 'PlatformControl={"sample_id": 4242}',
-        "--write", 'Alerts={"frontCollision": true}'])
+        "--write", 'Alerts={"frontCollision": true}'], separate_stderr=True)  # RTI logs to stderr in pieces
     hosts.app(a, "vision")
     fusion = hosts.app(a, "sensor_fusion")
     platform = hosts.app(a, "vehicle_platform")
@@ -295,7 +296,7 @@ def late_rti_participant(hosts: TwoHosts, launcher: CommandProcess, *rti_args: s
     rti = hosts.start(hosts.b, "rti_peer", [
         "unshare", "--ipc", sys.executable, str(ROOT / "tests" / "rti_peer.py"), "--domain", str(hosts.domain_id),
         *rti_args, "--read", ",".join(f"{name}:DefaultReader" for name in LATE_READS),
-        "--write", 'Circle={"color": "ORANGE", "x": 100, "y": 100, "shapesize": 30}'])
+        "--write", 'Circle={"color": "ORANGE", "x": 100, "y": 100, "shapesize": 30}'], separate_stderr=True)
     # The bound counts from the RTI participant's creation, not from the start of a Python process that imports
     # RTI's Connector (several seconds on a loaded 2-core machine: not what this test is about).
     rti.wait_for(r"^rti peer running$", timeout=120)
