@@ -2,6 +2,7 @@
 
     automotive launch                     the whole system on this host (automotive launch --help)
     automotive record -o drive.mcap       record the bus to MCAP
+    automotive monitor --once             who talks to whom, and why a writer and a reader do not match
     automotive run vision                 one application (the same as automotive-vision)
     automotive bench soak --minutes 30    a benchmark (automotive bench lists them)
     automotive --version                  this package's, Cyclone DDS's version, and whether the fast paths are on
@@ -44,6 +45,7 @@ TOOLS: dict[str, Command] = {
     "shape-main": Command("automotive.tools.shape_main", "the OMG interoperability suite's shape application"),
     "lidar-view": Command("automotive.tools.lidar_view", "show the LiDAR point cloud (a window or a PNG)"),
     "config": Command("automotive.tools.config_export", "export the shipped configuration to edit it"),
+    "monitor": Command("automotive.tools.monitor", "who talks to whom on the domain, and why a pair does not match"),
 }
 APPS: dict[str, Command] = {
     "vision": Command("automotive.apps.vision", "publishes the objects a vision sensor sees"),

@@ -46,7 +46,7 @@ STDOUT, STDERR = "stdout", "stderr"
 APPS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "camera_pub",
         "camera_sub")
 TOOLS = ("record", "replay", "bridge", "lidar_view", "shapes", "launch", "config_export", "make_scene_data",
-         "zenoh_bridge", "zenoh_certs", "delay_relay", "shape_main")
+         "zenoh_bridge", "zenoh_certs", "delay_relay", "shape_main", "monitor")
 
 
 def program_module(name: str) -> str:

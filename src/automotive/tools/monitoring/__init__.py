@@ -1,0 +1,11 @@
+"""The model and the analysis behind ``automotive monitor`` (automotive.tools.monitor, the command).
+
+- :mod:`.rules`: the DDS request-offered (RxO) rules as a table, each rule a small function with its words, and the
+  hints this project learned; pure Python, no DDS.
+- :mod:`.model`: the snapshot of a domain (participants, topics, endpoints, matches, mismatches with their reasons,
+  flows, the programs' health) built from discovery records and /diagnostics reports; :meth:`.model.Snapshot.to_json`
+  is what a page renders; no DDS either.
+- :mod:`.text`: the snapshot as text (``automotive monitor --once``).
+- :mod:`.discovery`: the DDS side: Cyclone's built-in discovery readers and the rt/diagnostics reader, turned into the
+  model's records.
+"""

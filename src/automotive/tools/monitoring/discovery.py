@@ -1,0 +1,223 @@
+"""The DDS side of the monitor: Cyclone's built-in discovery readers and a reader of rt/diagnostics, turned into the
+records of automotive.tools.monitoring.model.
+
+What discovery tells, measured with Cyclone DDS 11 (the built-in topics DCPSParticipant, DCPSPublication,
+DCPSSubscription):
+
+- every participant's GUID, whose first two bytes are its vendor id (0x0110 Cyclone, 0x0101 RTI Connext, 0x010f
+  Fast DDS: the RTPS specification's recommendation, which these follow), its EntityName when it gives one, and its
+  property list: Cyclone sends ``__Hostname``, ``__Pid``, ``__ProcessName``; RTI Connext 6 sends
+  ``dds.sys_info.hostname``, ``dds.sys_info.process_id``, ``dds.sys_info.executable_filepath``; Fast DDS sends
+  ``fastdds.physical_data.host`` and ``...process`` when configured to;
+- every writer and reader with its topic and type names, its QoS (Cyclone fills the specification's defaults for
+  what a remote endpoint leaves out) and whether it sent XTypes type information.
+
+The monitor writes no data: its readers are these built-in ones and the reader of rt/diagnostics (the framework
+gives it its own /diagnostics writer, as every program has).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import PurePath
+from typing import Any
+
+from cyclonedds.builtin import (
+    BuiltinDataReader,
+    BuiltinTopicDcpsParticipant,
+    BuiltinTopicDcpsPublication,
+    BuiltinTopicDcpsSubscription,
+)
+from cyclonedds.core import DDSException, InstanceState, ReadCondition, SampleState, ViewState
+from cyclonedds.qos import Policy
+
+from automotive.bus.diagnostics import DIAGNOSTICS_TOPIC
+from automotive.bus.endpoints import Databus
+from automotive.bus.qos import ROS2_DEFAULT_PROFILE
+from automotive.tools.monitoring.model import (
+    STALE_AFTER_S,
+    EndpointRecord,
+    ParticipantRecord,
+    ProgramReport,
+    Snapshot,
+    analyse,
+)
+from automotive.tools.monitoring.rules import INFINITE_NS, XCDR1, XCDR2, EndpointQos
+from automotive.types.diagnostic_msgs.msg.dds_ import DiagnosticArray_
+
+MAX_SAMPLES = 100_000  # per read of a built-in topic
+MAX_REPORTS = 1000  # programs remembered (a name that comes and goes under new names cannot grow it past this)
+FORGET_AFTER_S = 300.0  # a program silent this long is forgotten
+MAX_VALUES = 500  # key/values kept per report
+MAX_TEXT = 4096  # characters kept of a report's strings
+HOST_KEYS = ("__Hostname", "dds.sys_info.hostname", "fastdds.physical_data.host")
+PID_KEYS = ("__Pid", "dds.sys_info.process_id", "fastdds.physical_data.process")
+PROCESS_KEYS = ("__ProcessName", "dds.sys_info.executable_filepath")
+BUILTIN_TYPE_PREFIX = "org::eclipse::cyclonedds::builtin::"
+
+
+def _kind(policy: Any) -> str:
+    """``Policy.Durability.TransientLocal`` -> ``TRANSIENT_LOCAL``."""
+    name = type(policy).__name__.split(".")[-1]
+    return re.sub(r"(?<!^)(?=[A-Z])", "_", name).upper()
+
+
+def _ns(value: Any, default: int) -> int:
+    return value if isinstance(value, int) else default
+
+
+def endpoint_qos(qos: Any, type_name: str, type_information: bool, reader: bool) -> EndpointQos:
+    """The matching facts of an endpoint's QoS as Cyclone gives it (a missing policy: the specification's default)."""
+    policies = {getattr(policy, "__scope__", ""): policy for policy in qos}
+    facts: dict[str, Any] = {"type_name": type_name, "type_information": type_information,
+                             "reliability": "BEST_EFFORT" if reader else "RELIABLE"}
+    for scope, name in (("Reliability", "reliability"), ("Durability", "durability"), ("Ownership", "ownership"),
+                        ("DestinationOrder", "destination_order"), ("Liveliness", "liveliness"),
+                        ("PresentationAccessScope", "presentation")):
+        if scope in policies:
+            facts[name] = _kind(policies[scope])
+    if "Liveliness" in policies:
+        facts["lease_ns"] = _ns(getattr(policies["Liveliness"], "lease_duration", None), INFINITE_NS)
+    if "PresentationAccessScope" in policies:
+        facts["coherent_access"] = bool(getattr(policies["PresentationAccessScope"], "coherent_access", False))
+        facts["ordered_access"] = bool(getattr(policies["PresentationAccessScope"], "ordered_access", False))
+    for scope, name, attribute, default in (("Deadline", "deadline_ns", "deadline", INFINITE_NS),
+                                            ("LatencyBudget", "latency_budget_ns", "budget", 0),
+                                            ("Lifespan", "lifespan_ns", "lifespan", INFINITE_NS),
+                                            ("TimeBasedFilter", "time_based_filter_ns", "filter_time", 0)):
+        if scope in policies:
+            facts[name] = _ns(getattr(policies[scope], attribute, None), default)
+    if "Partition" in policies:
+        facts["partitions"] = tuple(str(name) for name in getattr(policies["Partition"], "partitions", ()))
+    if "OwnershipStrength" in policies:
+        facts["ownership_strength"] = _ns(getattr(policies["OwnershipStrength"], "strength", None), 0)
+    if "History" in policies:
+        history = policies["History"]
+        depth = getattr(history, "depth", None)
+        facts["history"] = f"KEEP_LAST {depth}" if depth is not None else _kind(history)
+    representation = policies.get("DataRepresentation")
+    if representation is not None:
+        # Discovery gives the set, not its order: a writer offering both is taken to write XCDR1, its first by
+        # convention (Cyclone's and ours).
+        chosen = tuple(name for name, on in ((XCDR1, representation.use_cdrv0_representation),
+                                             (XCDR2, representation.use_xcdrv2_representation)) if on)
+        facts["representations"] = chosen or ("other",)
+    return EndpointQos(**facts)
+
+
+def _properties(qos: Any) -> dict[str, str]:
+    return {policy.key: policy.value for policy in qos if isinstance(policy, Policy.Property)}
+
+
+def _entity_name(qos: Any) -> str | None:
+    return next((policy.name for policy in qos if isinstance(policy, Policy.EntityName)), None)
+
+
+def participant_record(sample: Any, own_key: str) -> ParticipantRecord:
+    properties = _properties(sample.qos)
+    key_bytes = sample.key.bytes
+    process = next((properties[key] for key in PROCESS_KEYS if key in properties), None)
+    return ParticipantRecord(
+        key=str(sample.key), name=_entity_name(sample.qos), vendor_id=int.from_bytes(key_bytes[:2], "big"),
+        host=next((properties[key] for key in HOST_KEYS if key in properties), None),
+        pid=next((properties[key] for key in PID_KEYS if key in properties), None),
+        process=PurePath(process).name if process and "/" in process else process, own=str(sample.key) == own_key)
+
+
+def endpoint_record(sample: Any, kind: str) -> EndpointRecord:
+    type_name = str(sample.type_name)
+    return EndpointRecord(str(sample.key), str(sample.participant_key), kind, str(sample.topic_name),
+                          endpoint_qos(sample.qos, type_name, sample.type_id is not None, kind == "reader"),
+                          _entity_name(sample.qos))
+
+
+class DomainView:
+    """The monitor's view of its domain, kept up to date by :meth:`poll`; :meth:`snapshot` analyses it."""
+
+    def __init__(self, bus: Databus):
+        self.bus = bus
+        participant = bus.participant
+        self.own_key = str(participant.guid)
+        self.readers = {name: BuiltinDataReader(participant, topic) for name, topic in (
+            ("participant", BuiltinTopicDcpsParticipant), ("writer", BuiltinTopicDcpsPublication),
+            ("reader", BuiltinTopicDcpsSubscription))}
+        any_sample = SampleState.Any | ViewState.Any
+        self._alive = {name: ReadCondition(reader, any_sample | InstanceState.Alive)
+                       for name, reader in self.readers.items()}
+        self._gone = {name: ReadCondition(reader, any_sample | InstanceState.NotAliveDisposed
+                                          | InstanceState.NotAliveNoWriters)
+                      for name, reader in self.readers.items()}
+        # Every program's health; history deep enough for a second of every program's report between two polls.
+        self.diagnostics = bus.reader(DIAGNOSTICS_TOPIC, DiagnosticArray_, ROS2_DEFAULT_PROFILE,
+                                      overrides=(Policy.History.KeepLast(256),))
+        self.reports: dict[tuple[str, str, str], tuple[Any, float]] = {}  # (name, host, pid) -> (report, received)
+        self.moved: dict[str, float] = {}  # topic -> when a report last showed it moving (monotonic)
+        self.problems: list[str] = []  # discovery data that could not be read, said once each
+
+    def _current(self, name: str) -> list[Any]:
+        """The live instances of one built-in topic; the departed ones are taken, so that a participant that comes
+        and goes a thousand times leaves nothing behind."""
+        reader = self.readers[name]
+        try:
+            reader.take(N=MAX_SAMPLES, condition=self._gone[name])
+            return [sample for sample in reader.read(N=MAX_SAMPLES, condition=self._alive[name])
+                    if getattr(sample, "sample_info", None) is None or sample.sample_info.valid_data]
+        except (DDSException, ValueError, TypeError, UnicodeError) as error:
+            problem = f"cannot read the built-in {name} topic: {error}"
+            if problem not in self.problems:
+                self.problems.append(problem)
+            return []
+
+    def poll(self) -> None:
+        """Take the /diagnostics reports that arrived."""
+        now = time.monotonic()
+        while True:
+            samples = self.diagnostics.take(N=256)
+            if not samples:
+                break
+            for sample in samples:
+                for status in getattr(sample, "status_", ()):
+                    self._report(status, now)
+        for key, (_, received) in list(self.reports.items()):
+            if now - received > FORGET_AFTER_S:
+                del self.reports[key]
+
+    def _report(self, status: Any, now: float) -> None:
+        values = tuple((str(pair.key_)[:MAX_TEXT], str(pair.value_)[:MAX_TEXT]) for pair in status.values_[:MAX_VALUES])
+        report = ProgramReport(str(status.name_)[:MAX_TEXT], str(status.hardware_id_)[:MAX_TEXT], int(status.level_),
+                               str(status.message_)[:MAX_TEXT], values, 0.0)
+        # Two programs of one name on one host (another system on the same domain) are two; a program restarted
+        # (a new pid) replaces its own stale report.
+        key = (report.name, report.host, report.value("pid") or "")
+        for other in [other for other, (_, received) in self.reports.items()
+                      if other[:2] == key[:2] and other != key and now - received > STALE_AFTER_S]:
+            del self.reports[other]
+        if key not in self.reports and len(self.reports) >= MAX_REPORTS:
+            oldest = min(self.reports, key=lambda item: self.reports[item][1])
+            del self.reports[oldest]
+        self.reports[key] = (report, now)
+        for name, value in values:
+            for suffix in (" out/s", " in/s"):
+                if name.endswith(suffix):
+                    try:
+                        moving = float(value) > 0
+                    except ValueError:
+                        moving = False
+                    if moving:
+                        self.moved[name[:-len(suffix)]] = now
+
+    def records(self) -> tuple[list[ParticipantRecord], list[EndpointRecord]]:
+        participants = [participant_record(sample, self.own_key) for sample in self._current("participant")]
+        endpoints = [endpoint_record(sample, kind) for kind in ("writer", "reader") for sample in self._current(kind)
+                     if not str(sample.type_name).startswith(BUILTIN_TYPE_PREFIX)]
+        return participants, endpoints
+
+    def snapshot(self) -> Snapshot:
+        self.poll()
+        now = time.monotonic()
+        participants, endpoints = self.records()
+        reports = [ProgramReport(report.name, report.host, report.level, report.message, report.values,
+                                 now - received) for report, received in self.reports.values()]
+        moved_ago = {topic: now - at for topic, at in self.moved.items()}
+        return analyse(self.bus.domain_id, participants, endpoints, reports, moved_ago)

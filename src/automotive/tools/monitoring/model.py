@@ -1,0 +1,366 @@
+"""The snapshot of a domain: what ``automotive monitor`` prints and what its page renders.
+
+:func:`analyse` builds a :class:`Snapshot` from plain records: the participants and endpoints discovery gives
+(:class:`ParticipantRecord`, :class:`EndpointRecord`) and the programs' latest /diagnostics reports
+(:class:`ProgramReport`). It needs no DDS, so every case (absurd names, unknown vendors, QoS at its limits) is tested
+with records made by hand. :meth:`Snapshot.to_dict` / :meth:`Snapshot.to_json` is the document a page renders and
+``--json`` prints.
+
+Which pairs match is the monitor's judgement by the DDS rules (automotive.tools.monitoring.rules): Cyclone tells the
+matched endpoints of its *own* readers and writers only, never whether two other programs' endpoints matched.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+from automotive.bus.diagnostics import DIAGNOSTICS_TOPIC
+from automotive.tools.monitoring.rules import EndpointQos, Reason, hints, mismatch_reasons, participant_hint
+
+UNKNOWN = "unknown"
+LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+STALE_AFTER_S = 5.0  # a program whose last report is older than this is STALE (it reports every second)
+
+# RTPS vendor ids (the OMG's list), found in the first two bytes of a GUID prefix, as the RTPS specification
+# recommends and Cyclone DDS, RTI Connext 6 and Fast DDS do.
+VENDORS = {
+    0x0101: "RTI Connext DDS", 0x0102: "ADLINK OpenSplice", 0x0103: "OCI OpenDDS", 0x0104: "MilSoft Mil-DDS",
+    0x0105: "Kongsberg InterCOM DDS", 0x0106: "Twin Oaks CoreDX DDS", 0x0107: "Lakota Technical Solutions",
+    0x0108: "ICOUP Consulting", 0x0109: "ETRI Diamond DDS", 0x010A: "RTI Connext DDS Micro",
+    0x010B: "ADLINK Vortex Cafe", 0x010C: "PrismTech", 0x010D: "ADLINK Vortex Lite", 0x010E: "Technicolor Qeo",
+    0x010F: "eProsima Fast DDS", 0x0110: "Eclipse Cyclone DDS", 0x0111: "GurumNetworks GurumDDS",
+    0x0112: "Atostek RustDDS", 0x0113: "Nanjing Zhenrong ZRDDS", 0x0114: "S2E Software Dust DDS",
+}
+
+
+def vendor_name(vendor_id: int | None) -> str:
+    if vendor_id is None:
+        return UNKNOWN
+    return VENDORS.get(vendor_id, UNKNOWN)
+
+
+@dataclass(frozen=True)
+class ParticipantRecord:
+    """One participant as discovery gives it (None: not told)."""
+
+    key: str
+    name: str | None = None
+    vendor_id: int | None = None
+    host: str | None = None
+    pid: str | None = None
+    process: str | None = None
+    own: bool = False  # the monitor's own participant
+
+
+@dataclass(frozen=True)
+class EndpointRecord:
+    """One writer or reader as discovery gives it."""
+
+    key: str
+    participant: str
+    kind: str  # "writer" | "reader"
+    topic: str
+    qos: EndpointQos
+    name: str | None = None
+
+
+@dataclass(frozen=True)
+class ProgramReport:
+    """One program's latest /diagnostics status and how long ago it arrived."""
+
+    name: str
+    host: str
+    level: int
+    message: str
+    values: tuple[tuple[str, str], ...]
+    age_s: float
+
+    def value(self, key: str) -> str | None:
+        return next((value for name, value in self.values if name == key), None)
+
+
+# -- the snapshot -----------------------------------------------------------------------------------------------------
+@dataclass
+class Participant:
+    key: str
+    name: str
+    vendor: str
+    vendor_id: str
+    host: str
+    pid: str
+    process: str
+    own: bool
+    health: str | None = None  # the level of its program's /diagnostics, when one reports under its name
+    writers: list[str] = field(default_factory=list)
+    readers: list[str] = field(default_factory=list)
+    hints: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Endpoint:
+    key: str
+    participant: str
+    participant_name: str
+    kind: str
+    topic: str
+    type_name: str
+    name: str | None
+    qos: EndpointQos
+    matched: list[str] = field(default_factory=list)  # the keys of the endpoints it matches (by the rules)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"key": self.key, "participant": self.participant, "participant_name": self.participant_name,
+                "kind": self.kind, "topic": self.topic, "type_name": self.type_name, "name": self.name,
+                "qos": self.qos.to_dict(), "matched": self.matched}
+
+
+@dataclass
+class Topic:
+    name: str
+    type_names: list[str]
+    writers: list[str]
+    readers: list[str]
+
+
+@dataclass
+class Match:
+    topic: str
+    writer: str
+    reader: str
+    writer_participant: str
+    reader_participant: str
+    hints: list[str] = field(default_factory=list)
+
+
+@dataclass
+class Mismatch:
+    topic: str
+    writer: str
+    reader: str
+    writer_participant: str
+    reader_participant: str
+    reasons: list[Reason]
+    hints: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"topic": self.topic, "writer": self.writer, "reader": self.reader,
+                "writer_participant": self.writer_participant, "reader_participant": self.reader_participant,
+                "reasons": [reason.to_dict() for reason in self.reasons], "hints": self.hints}
+
+
+@dataclass
+class Notice:
+    """A reader with no writer of its topic, a reader that matched none of its topic's writers, a topic with writers
+    and no reader."""
+
+    kind: str  # "reader without writer" | "reader matched no writer" | "topic without reader"
+    topic: str | None
+    subject: str | None  # the endpoint or participant key
+    words: str
+
+
+@dataclass
+class Flow:
+    """One topic's traffic as the programs' /diagnostics report it."""
+
+    topic: str
+    rate: float  # samples/s: what its writers report writing (else the most any reader reports reading)
+    writers: dict[str, float]  # program -> samples out/s
+    readers: dict[str, float]  # program -> samples in/s
+    last_sample_age_s: float | None  # since a report last showed it moving; None: not seen moving
+    deadline_missed: int
+    liveliness_changes: int
+    samples_lost: int
+    incompatible_qos: int
+
+
+@dataclass
+class ProgramHealth:
+    name: str
+    host: str
+    level: str
+    message: str
+    report_age_s: float
+    pid: str | None
+    values: dict[str, str]
+
+
+@dataclass
+class Snapshot:
+    domain: int
+    taken_at: float  # time.time()
+    participants: list[Participant]
+    topics: list[Topic]
+    endpoints: list[Endpoint]
+    matches: list[Match]
+    mismatches: list[Mismatch]
+    notices: list[Notice]
+    flows: list[Flow]
+    programs: list[ProgramHealth]
+
+    def participant(self, key: str) -> Participant | None:
+        return next((p for p in self.participants if p.key == key), None)
+
+    def endpoint(self, key: str) -> Endpoint | None:
+        return next((e for e in self.endpoints if e.key == key), None)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "domain": self.domain,
+            "taken_at": time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(self.taken_at)) + "Z",
+            "participants": [vars(p) for p in self.participants],
+            "topics": [vars(t) for t in self.topics],
+            "endpoints": [e.to_dict() for e in self.endpoints],
+            "matches": [vars(m) for m in self.matches],
+            "mismatches": [m.to_dict() for m in self.mismatches],
+            "notices": [vars(n) for n in self.notices],
+            "flows": [vars(f) for f in self.flows],
+            "programs": [vars(p) for p in self.programs],
+        }
+
+    def to_json(self, indent: int | None = 2) -> str:
+        return json.dumps(self.to_dict(), indent=indent, ensure_ascii=False)
+
+
+# -- the analysis -----------------------------------------------------------------------------------------------------
+def _participant(record: ParticipantRecord) -> Participant:
+    return Participant(key=record.key, name=record.name or UNKNOWN, vendor=vendor_name(record.vendor_id),
+                       vendor_id=UNKNOWN if record.vendor_id is None else f"0x{record.vendor_id:04x}",
+                       host=record.host or UNKNOWN, pid=record.pid or UNKNOWN, process=record.process or UNKNOWN,
+                       own=record.own)
+
+
+def analyse(domain: int, participant_records: Iterable[ParticipantRecord], endpoint_records: Iterable[EndpointRecord],
+            reports: Iterable[ProgramReport] = (), moved_ago: dict[str, float] | None = None,
+            taken_at: float | None = None) -> Snapshot:
+    """The snapshot of the domain: ``moved_ago``: per topic, seconds since a report last showed it moving."""
+    participants = {record.key: _participant(record) for record in participant_records}
+    endpoints: list[Endpoint] = []
+    for record in endpoint_records:
+        owner = participants.get(record.participant)
+        if owner is None:  # an endpoint whose participant is not (or no longer) known: shown under "unknown"
+            owner = participants[record.participant] = _participant(ParticipantRecord(record.participant))
+        endpoint = Endpoint(record.key, record.participant, owner.name, record.kind, record.topic,
+                            record.qos.type_name, record.name, record.qos)
+        endpoints.append(endpoint)
+        (owner.writers if record.kind == "writer" else owner.readers).append(record.key)
+    endpoints.sort(key=lambda e: (e.topic, e.kind, e.participant_name, e.key))
+
+    topics: dict[str, Topic] = {}
+    for endpoint in endpoints:
+        topic = topics.setdefault(endpoint.topic, Topic(endpoint.topic, [], [], []))
+        if endpoint.type_name not in topic.type_names:
+            topic.type_names.append(endpoint.type_name)
+        (topic.writers if endpoint.kind == "writer" else topic.readers).append(endpoint.key)
+
+    by_key = {endpoint.key: endpoint for endpoint in endpoints}
+    matches: list[Match] = []
+    mismatches: list[Mismatch] = []
+    notices: list[Notice] = []
+    for topic in topics.values():
+        for reader_key in topic.readers:
+            reader = by_key[reader_key]
+            reader_vendor = participants[reader.participant].vendor
+            for writer_key in topic.writers:
+                writer = by_key[writer_key]
+                writer_vendor = participants[writer.participant].vendor
+                reasons = mismatch_reasons(writer.qos, reader.qos)
+                said = hints(writer.qos, reader.qos, writer_vendor, reader_vendor, reasons)
+                if reasons:
+                    mismatches.append(Mismatch(topic.name, writer.key, reader.key, writer.participant_name,
+                                               reader.participant_name, reasons, said))
+                else:
+                    matches.append(Match(topic.name, writer.key, reader.key, writer.participant_name,
+                                         reader.participant_name, said))
+                    writer.matched.append(reader.key)
+                    reader.matched.append(writer.key)
+            if not topic.writers:
+                notices.append(Notice("reader without writer", topic.name, reader.key,
+                                      f"{reader.participant_name} reads {topic.name}: no writer of this topic "
+                                      "in the domain"))
+            elif not reader.matched:
+                notices.append(Notice("reader matched no writer", topic.name, reader.key,
+                                      f"{reader.participant_name} reads {topic.name}: none of its "
+                                      f"{len(topic.writers)} writer(s) matches (see the mismatches)"))
+        if topic.writers and not topic.readers:
+            names = sorted({by_key[key].participant_name for key in topic.writers})
+            notices.append(Notice("topic without reader", topic.name, None,
+                                  f"{topic.name} is written ({', '.join(names)}) and read by nobody"))
+
+    hosts: dict[str, int] = {}
+    for participant in participants.values():
+        hosts[participant.host] = hosts.get(participant.host, 0) + 1
+    for participant in participants.values():
+        hint = participant_hint(participant.vendor, hosts.get(participant.host, 1) - 1)
+        if hint:  # said with the participant, not as a notice: it is what may be, not what is
+            participant.hints.append(hint)
+
+    report_list = list(reports)
+    programs = [_health(report) for report in report_list]
+    for program in programs:  # a participant and the program reporting under its name, host and process
+        for participant in participants.values():
+            if participant.name == program.name and participant.host in (program.host, UNKNOWN) and (
+                    program.pid is None or participant.pid in (program.pid, UNKNOWN)):
+                participant.health = program.level
+    return Snapshot(domain, time.time() if taken_at is None else taken_at,
+                    sorted(participants.values(), key=lambda p: (p.own, p.name, p.key)),
+                    sorted(topics.values(), key=lambda t: t.name), endpoints, matches, mismatches, notices,
+                    flows(report_list, moved_ago or {}), sorted(programs, key=lambda p: p.name))
+
+
+def _health(report: ProgramReport) -> ProgramHealth:
+    level = LEVELS.get(report.level, f"level {report.level}")
+    if report.age_s > STALE_AFTER_S:
+        level = "STALE"
+    return ProgramHealth(report.name, report.host, level, report.message, round(report.age_s, 1),
+                         report.value("pid"), dict(report.values))
+
+
+# The keys of automotive.bus.diagnostics' values, per topic: "<topic> <suffix>".
+RATE_OUT, RATE_IN = " out/s", " in/s"
+COUNTS = {" deadline missed": "deadline_missed", " liveliness changes": "liveliness_changes",
+          " samples lost": "samples_lost", " incompatible QoS": "incompatible_qos"}
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        return 0.0
+    return value if value == value and abs(value) != float("inf") else 0.0  # NaN and infinities: nothing
+
+
+def flows(reports: list[ProgramReport], moved_ago: dict[str, float]) -> list[Flow]:
+    """The flows per topic from the programs' reports (their samples in and out per second and event counts)."""
+    found: dict[str, Flow] = {}
+
+    def flow(topic: str) -> Flow:
+        return found.setdefault(topic, Flow(topic, 0.0, {}, {}, moved_ago.get(topic), 0, 0, 0, 0))
+
+    for report in reports:
+        if report.age_s > STALE_AFTER_S:
+            continue  # a stopped program's last rates are not a flow
+        for key, value in report.values:
+            # Two programs of one name (another system on the domain) add up.
+            if key.endswith(RATE_OUT):
+                writers = flow(key[:-len(RATE_OUT)]).writers
+                writers[report.name] = writers.get(report.name, 0.0) + _number(value)
+            elif key.endswith(RATE_IN):
+                readers = flow(key[:-len(RATE_IN)]).readers
+                readers[report.name] = readers.get(report.name, 0.0) + _number(value)
+            else:
+                for suffix, name in COUNTS.items():
+                    if key.endswith(suffix):
+                        item = flow(key[:-len(suffix)])
+                        setattr(item, name, getattr(item, name) + int(_number(value)))
+    # /diagnostics itself is no data flow: its writers are in no program's traffic count, by design.
+    found.pop(DIAGNOSTICS_TOPIC, None)
+    for item in found.values():
+        item.rate = round(sum(item.writers.values()) if item.writers else max(item.readers.values(), default=0.0), 3)
+        if item.last_sample_age_s is not None:
+            item.last_sample_age_s = round(item.last_sample_age_s, 1)
+    return sorted(found.values(), key=lambda f: f.topic)

@@ -1,0 +1,107 @@
+"""A snapshot as text: what ``automotive monitor --once`` prints (for SSH sessions and scripts).
+
+Sections: the participants with their endpoints, the matched pairs, the mismatches with their reasons, the notices (a
+reader with no writer, a topic nobody reads, hints), the flows and the programs' health. Names longer than
+NAME_WIDTH are cut (``...``): discovery data from another system may carry names of any length.
+"""
+
+from __future__ import annotations
+
+import time
+
+from automotive.tools.monitoring.model import Snapshot
+from automotive.tools.monitoring.rules import duration_words
+
+NAME_WIDTH = 48
+MESSAGE_WIDTH = 300
+
+
+def cut(text: str | None, width: int = NAME_WIDTH) -> str:
+    """``text`` on one line, at most ``width`` characters (``...`` says it was cut); "unknown" for None."""
+    if text is None:
+        return "unknown"
+    line = "".join(character if character.isprintable() else "?" for character in text)
+    return line if len(line) <= width else line[:width - 3] + "..."
+
+
+def render(snapshot: Snapshot) -> str:
+    lines: list[str] = []
+    add = lines.append
+    when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(snapshot.taken_at))
+    add(f"domain {snapshot.domain} at {when}: {len(snapshot.participants)} participant(s), "
+        f"{len(snapshot.topics)} topic(s), {len(snapshot.matches)} matched pair(s), "
+        f"{len(snapshot.mismatches)} mismatch(es)")
+
+    add("")
+    add("Participants")
+    if not snapshot.participants:
+        add("  (none seen)")
+    names = {endpoint.key: endpoint for endpoint in snapshot.endpoints}
+    for participant in snapshot.participants:
+        own = " (this monitor)" if participant.own else ""
+        health = f", health {participant.health}" if participant.health else ""
+        add(f"  {cut(participant.name)}{own}: {participant.vendor}, host {cut(participant.host)}, "
+            f"pid {cut(participant.pid, 12)} ({cut(participant.process)}){health}")
+        for hint in participant.hints:
+            add(f"    hint: {hint}")
+        for kind, keys in (("writes", participant.writers), ("reads", participant.readers)):
+            for key in keys:
+                endpoint = names.get(key)
+                if endpoint is None:
+                    continue
+                qos = endpoint.qos
+                add(f"    {kind} {cut(endpoint.topic)} ({cut(endpoint.type_name)}): {qos.reliability}, "
+                    f"{qos.durability}, deadline {duration_words(qos.deadline_ns)}, "
+                    f"latency budget {duration_words(qos.latency_budget_ns)}, {qos.ownership}, "
+                    f"{'/'.join(qos.representations)}")
+
+    add("")
+    add("Matches (by the DDS rules)")
+    if not snapshot.matches:
+        add("  (none)")
+    for match in snapshot.matches:
+        add(f"  {cut(match.topic)}: {cut(match.writer_participant)} -> {cut(match.reader_participant)}")
+        for hint in match.hints:
+            add(f"    hint: {hint}")
+
+    add("")
+    add("Mismatches")
+    if not snapshot.mismatches:
+        add("  (none)")
+    for mismatch in snapshot.mismatches:
+        writer = snapshot.participant(names[mismatch.writer].participant) if mismatch.writer in names else None
+        reader = snapshot.participant(names[mismatch.reader].participant) if mismatch.reader in names else None
+        add(f"  {cut(mismatch.topic)}: writer {cut(mismatch.writer_participant)}"
+            f"{f' ({writer.vendor})' if writer else ''} -> reader {cut(mismatch.reader_participant)}"
+            f"{f' ({reader.vendor})' if reader else ''}")
+        for reason in mismatch.reasons:
+            add(f"    {cut(reason.words, MESSAGE_WIDTH)}")
+        for hint in mismatch.hints:
+            add(f"    hint: {hint}")
+
+    add("")
+    add("Notices")
+    if not snapshot.notices:
+        add("  (none)")
+    for notice in snapshot.notices:
+        add(f"  {cut(notice.words, MESSAGE_WIDTH)}")
+
+    add("")
+    add("Flows (from the programs' /diagnostics)")
+    if not snapshot.flows:
+        add("  (no program reports on rt/diagnostics)")
+    for flow in snapshot.flows:
+        age = "never seen moving" if flow.last_sample_age_s is None else f"last sample {flow.last_sample_age_s:g} s ago"
+        readers = ", ".join(f"{cut(name)} {rate:g}/s" for name, rate in flow.readers.items()) or "none"
+        add(f"  {cut(flow.topic)}: {flow.rate:g} samples/s, {age}; read by {readers}; "
+            f"deadline missed {flow.deadline_missed}, liveliness changes {flow.liveliness_changes}, "
+            f"samples lost {flow.samples_lost}, incompatible QoS {flow.incompatible_qos}")
+
+    add("")
+    add("Programs (/diagnostics)")
+    if not snapshot.programs:
+        add("  (none reports)")
+    for program in snapshot.programs:
+        add(f"  {cut(program.name)}: {program.level} ({cut(program.host)}, {program.report_age_s:g} s ago): "
+            f"{cut(program.message, MESSAGE_WIDTH)}")
+    return "\n".join(lines) + "\n"
