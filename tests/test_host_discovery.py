@@ -348,6 +348,29 @@ def test_cyclonedds_ps_joining_long_after_the_start_lists_every_application(syst
     assert run_ps(system.lan.host, system.domain) >= set(APPS)
 
 
+
+def test_an_application_whose_discovery_multicast_port_is_taken_runs_on_loopback_and_says_so(
+        apps: AppRunner, domain_id: int) -> None:
+    """Unlike the index ports, the domain's discovery multicast port is fixed: another program may hold it (an
+    ephemeral port, for domains from 102 up). The application then runs on 127.0.0.1 only, with one line saying that
+    Cyclone's default tools will not see it, and no line of Cyclone's own."""
+    needs_namespaces()
+    port = domain_base(domain_id)
+    holder = ("import socket, sys; s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM); "
+              f"s.bind(('0.0.0.0', {port})); print('holding', flush=True); sys.stdin.read()")
+    with LanHost("hd") as lan:
+        held = apps.start_command("holder", lan.host.exec(sys.executable, "-c", holder), stdin=True)
+        held.wait_for(r"^holding$")
+        vision = apps.start_command("vision", on_defaults(lan.host, *program_command(
+            "vision", "--domain", str(domain_id), "--count", "3")))
+        assert vision.wait_exit() == 0, vision.output
+        warnings = [line for line in vision.lines if "WARNING" in line]
+        assert len(warnings) == 1 and warnings[0].endswith(
+            f"WARNING: network: Cyclone DDS tools on their defaults will not see this application: the domain's "
+            f"discovery multicast port {port} is taken by another program; staying on 127.0.0.1 only"), vision.output
+        assert not re.search(r"^\d+\.\d+ \[\d+\] ", vision.output, re.M), vision.output  # no Cyclone line
+        held.stop()
+
 # -- the plain participant (this module as a script) ------------------------------------------------------------------
 
 def flow_type(topic: str) -> type[Any]:

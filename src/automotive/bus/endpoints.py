@@ -50,14 +50,26 @@ class CheckedWriter(DataWriter[T]):
 def open_domain(domain_id: int, network: NetworkConfig, plan: PeerPlan, log: logging.Logger) -> Domain:
     """The Cyclone domain with the applications' network configuration. In loopback mode with the host's LAN
     interface, its sockets are made deaf to other hosts (automotive.cyclone.hostonly) before any participant joins it;
-    if that fails, the domain is opened again on 127.0.0.1 only, with a warning."""
+    if that cannot be done, or the domain's discovery multicast port is another program's, the domain is opened on
+    127.0.0.1 only, with a warning: the application runs, unseen by Cyclone's default tools."""
     lan_interface = "" if network.network_from_user else network.lan_interface()
-    if lan_interface:
-        network = replace(network, host_interface=lan_interface)
-    before = hostonly.open_sockets() if lan_interface else {}
-    domain = _domain(domain_id, network, plan)
     if not lan_interface:
-        return domain
+        return _domain(domain_id, network, plan)
+    network = replace(network, host_interface=lan_interface)
+    # A fixed port, unlike the participant index ports (Cyclone takes the next free index): domains from 102 up lie
+    # in the kernel's range of ephemeral ports, where any program's socket may hold it for a while. Looked at first,
+    # so that Cyclone does not print its own error; and again if Cyclone fails (taken meanwhile).
+    port_taken = f"the domain's discovery multicast port {domain_base(domain_id)} is taken by another program"
+    if _port_taken(domain_base(domain_id)):
+        return _loopback_only(domain_id, network, plan, log, port_taken)
+    before = hostonly.open_sockets()
+    try:
+        domain = _domain(domain_id, network, plan)
+    except ConfigError as error:
+        if not _port_taken(domain_base(domain_id)):
+            raise
+        log.debug("network: %s", error)
+        return _loopback_only(domain_id, network, plan, log, port_taken)
     addresses = tuple(address.address for address in psutil.net_if_addrs().get(lan_interface, [])
                       if address.family == socket.AF_INET) + ("127.0.0.1",)
     try:
@@ -65,11 +77,26 @@ def open_domain(domain_id: int, network: NetworkConfig, plan: PeerPlan, log: log
         if not filtered.covers(domain_base(domain_id)):
             raise hostonly.FilterError(0, "its discovery sockets were not found")
     except OSError as error:
-        log.warning("network: Cyclone DDS tools on their defaults will not see this application: %s; staying on "
-                    "127.0.0.1 only", error.strerror or error)
         del domain
-        return _domain(domain_id, replace(network, host_interface=""), plan)
+        return _loopback_only(domain_id, network, plan, log, str(error.strerror or error))
     return domain
+
+
+def _loopback_only(domain_id: int, network: NetworkConfig, plan: PeerPlan, log: logging.Logger, why: str) -> Domain:
+    log.warning("network: Cyclone DDS tools on their defaults will not see this application: %s; staying on "
+                "127.0.0.1 only", why)
+    return _domain(domain_id, replace(network, host_interface=""), plan)
+
+
+def _port_taken(port: int) -> bool:
+    """Whether another program holds a UDP port so that Cyclone cannot share it (bound without address reuse)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(("0.0.0.0", port))
+        except OSError:
+            return True
+    return False
 
 
 def _domain(domain_id: int, network: NetworkConfig, plan: PeerPlan) -> Domain:
