@@ -19,6 +19,7 @@ gives it its own /diagnostics writer, as every program has).
 from __future__ import annotations
 
 import re
+import threading
 import time
 from pathlib import PurePath
 from typing import Any
@@ -43,10 +44,12 @@ from automotive.tools.monitoring.model import (
     Snapshot,
     analyse,
 )
+from automotive.tools.monitoring.probes import Probes
 from automotive.tools.monitoring.rules import INFINITE_NS, XCDR1, XCDR2, EndpointQos
 from automotive.types.diagnostic_msgs.msg.dds_ import DiagnosticArray_
 
-MAX_SAMPLES = 100_000  # per read of a built-in topic
+CHUNK = 256  # samples per read or take of a built-in topic
+MAX_PROBLEMS = 100  # problems said (each once)
 MAX_REPORTS = 1000  # programs remembered (a name that comes and goes under new names cannot grow it past this)
 FORGET_AFTER_S = 300.0  # a program silent this long is forgotten
 MAX_VALUES = 500  # key/values kept per report
@@ -55,6 +58,7 @@ HOST_KEYS = ("__Hostname", "dds.sys_info.hostname", "fastdds.physical_data.host"
 PID_KEYS = ("__Pid", "dds.sys_info.process_id", "fastdds.physical_data.process")
 PROCESS_KEYS = ("__ProcessName", "dds.sys_info.executable_filepath")
 BUILTIN_TYPE_PREFIX = "org::eclipse::cyclonedds::builtin::"
+FOLLOW_S = 1.0  # how often a poll looks for writers of the flows the probes read
 
 
 def _kind(policy: Any) -> str:
@@ -135,16 +139,19 @@ def endpoint_record(sample: Any, kind: str) -> EndpointRecord:
 class DomainView:
     """The monitor's view of its domain, kept up to date by :meth:`poll`; :meth:`snapshot` analyses it."""
 
-    def __init__(self, bus: Databus):
+    def __init__(self, bus: Databus, camera: bool = False, probes: bool = True):
         self.bus = bus
+        self.lock = threading.RLock()  # a page's server may snapshot from one thread and draw the LiDAR from another
         participant = bus.participant
         self.own_key = str(participant.guid)
         self.readers = {name: BuiltinDataReader(participant, topic) for name, topic in (
             ("participant", BuiltinTopicDcpsParticipant), ("writer", BuiltinTopicDcpsPublication),
             ("reader", BuiltinTopicDcpsSubscription))}
         any_sample = SampleState.Any | ViewState.Any
-        self._alive = {name: ReadCondition(reader, any_sample | InstanceState.Alive)
+        self._fresh = {name: ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Alive)
                        for name, reader in self.readers.items()}
+        self._known: dict[str, dict[int, ParticipantRecord | EndpointRecord | None]] = {
+            name: {} for name in self.readers}  # instance handle -> its record
         self._gone = {name: ReadCondition(reader, any_sample | InstanceState.NotAliveDisposed
                                           | InstanceState.NotAliveNoWriters)
                       for name, reader in self.readers.items()}
@@ -154,23 +161,61 @@ class DomainView:
         self.reports: dict[tuple[str, str, str], tuple[Any, float]] = {}  # (name, host, pid) -> (report, received)
         self.moved: dict[str, float] = {}  # topic -> when a report last showed it moving (monotonic)
         self.problems: list[str] = []  # discovery data that could not be read, said once each
+        # The monitor's own raw readers of the system's flows (the camera's only with ``camera``).
+        self.probes = Probes(bus, camera) if probes else None
+        self._followed = -FOLLOW_S
 
     def _current(self, name: str) -> list[Any]:
-        """The live instances of one built-in topic; the departed ones are taken, so that a participant that comes
-        and goes a thousand times leaves nothing behind."""
-        reader = self.readers[name]
+        """The records of the live instances of one built-in topic (ParticipantRecord, EndpointRecord; None for the
+        built-in endpoints), kept between calls by instance: only what is new or changed is read and converted. The
+        departed instances are taken, and forgotten, so that a participant that comes and goes a thousand times
+        leaves nothing behind. Read in chunks: Cyclone allocates what a read of N samples may return."""
+        reader, known = self.readers[name], self._known[name]
         try:
-            reader.take(N=MAX_SAMPLES, condition=self._gone[name])
-            return [sample for sample in reader.read(N=MAX_SAMPLES, condition=self._alive[name])
-                    if getattr(sample, "sample_info", None) is None or sample.sample_info.valid_data]
+            while True:
+                gone = reader.take(N=CHUNK, condition=self._gone[name])
+                for sample in gone:
+                    known.pop(sample.sample_info.instance_handle, None)
+                if len(gone) < CHUNK:
+                    break
+            while True:
+                fresh = reader.read(N=CHUNK, condition=self._fresh[name])
+                for sample in fresh:
+                    if sample.sample_info.valid_data:
+                        known[sample.sample_info.instance_handle] = self._record(name, sample)
+                if len(fresh) < CHUNK:
+                    break
         except (DDSException, ValueError, TypeError, UnicodeError) as error:
-            problem = f"cannot read the built-in {name} topic: {error}"
-            if problem not in self.problems:
-                self.problems.append(problem)
-            return []
+            self._problem(f"cannot read the built-in {name} topic: {error}")
+        return [record for record in known.values() if record is not None]
+
+    def _record(self, name: str, sample: Any) -> ParticipantRecord | EndpointRecord | None:
+        try:
+            if name == "participant":
+                return participant_record(sample, self.own_key)
+            if str(sample.type_name).startswith(BUILTIN_TYPE_PREFIX):
+                return None
+            return endpoint_record(sample, name)
+        except (ValueError, TypeError, UnicodeError, AttributeError, KeyError) as error:
+            self._problem(f"cannot read a {name} of the built-in topic: {error}")
+            return None
+
+    def _problem(self, problem: str) -> None:
+        if problem not in self.problems and len(self.problems) < MAX_PROBLEMS:
+            self.problems.append(problem)
 
     def poll(self) -> None:
-        """Take the /diagnostics reports that arrived."""
+        """Take the /diagnostics reports and the probes' samples that arrived; call it at least every second."""
+        with self.lock:
+            self._poll()
+            if self.probes is not None:
+                now = time.monotonic()
+                if now - self._followed >= FOLLOW_S:  # the writers of the flows it reads: which readers to have
+                    self._followed = now
+                    self.probes.follow(self._current("writer"))
+                self.probes.poll()
+
+    def _poll(self) -> None:
         now = time.monotonic()
         while True:
             samples = self.diagnostics.take(N=256)
@@ -182,6 +227,9 @@ class DomainView:
         for key, (_, received) in list(self.reports.items()):
             if now - received > FORGET_AFTER_S:
                 del self.reports[key]
+        for topic, at in list(self.moved.items()):
+            if now - at > FORGET_AFTER_S:
+                del self.moved[topic]
 
     def _report(self, status: Any, now: float) -> None:
         values = tuple((str(pair.key_)[:MAX_TEXT], str(pair.value_)[:MAX_TEXT]) for pair in status.values_[:MAX_VALUES])
@@ -208,16 +256,35 @@ class DomainView:
                         self.moved[name[:-len(suffix)]] = now
 
     def records(self) -> tuple[list[ParticipantRecord], list[EndpointRecord]]:
-        participants = [participant_record(sample, self.own_key) for sample in self._current("participant")]
-        endpoints = [endpoint_record(sample, kind) for kind in ("writer", "reader") for sample in self._current(kind)
-                     if not str(sample.type_name).startswith(BUILTIN_TYPE_PREFIX)]
+        participants = [record for record in self._current("participant") if isinstance(record, ParticipantRecord)]
+        endpoints = [record for kind in ("writer", "reader") for record in self._current(kind)
+                     if isinstance(record, EndpointRecord)]
         return participants, endpoints
 
     def snapshot(self) -> Snapshot:
-        self.poll()
-        now = time.monotonic()
-        participants, endpoints = self.records()
-        reports = [ProgramReport(report.name, report.host, report.level, report.message, report.values,
-                                 now - received) for report, received in self.reports.values()]
-        moved_ago = {topic: now - at for topic, at in self.moved.items()}
-        return analyse(self.bus.domain_id, participants, endpoints, reports, moved_ago)
+        with self.lock:
+            self.poll()
+            now = time.monotonic()
+            participants, endpoints = self.records()
+            reports = [ProgramReport(report.name, report.host, report.level, report.message, report.values,
+                                     now - received) for report, received in self.reports.values()]
+            moved_ago = {topic: now - at for topic, at in self.moved.items()}
+            if self.probes is not None:
+                self.probes.follow(endpoints)
+                self._followed = now
+            measured = self.probes.measured() if self.probes is not None else {}
+            vehicle = self.probes.vehicle(reports) if self.probes is not None else None
+            if self.probes is not None:
+                for problem in self.probes.problems:
+                    if problem not in self.problems:
+                        self.problems.append(problem)
+            return analyse(self.bus.domain_id, participants, endpoints, reports, moved_ago, measured=measured,
+                           vehicle=vehicle)
+
+    def lidar_png(self) -> bytes | None:
+        """The newest LiDAR cloud as a PNG (it changes at most every 2 s: ``vehicle.lidar_image_at``); None
+        before the first cloud. For a page's ``/lidar.png``."""
+        if self.probes is None:
+            return None
+        with self.lock:
+            return self.probes.lidar_png()

@@ -165,17 +165,64 @@ class Notice:
 
 @dataclass
 class Flow:
-    """One topic's traffic as the programs' /diagnostics report it."""
+    """One topic's traffic as the programs' /diagnostics report it and the monitor's own raw readers measure it."""
 
     topic: str
-    rate: float  # samples/s: what its writers report writing (else the most any reader reports reading)
+    rate: float  # samples/s: what its writers report writing (else the most any reader reports reading, else what
+    # the monitor's own reader measures)
     writers: dict[str, float]  # program -> samples out/s
     readers: dict[str, float]  # program -> samples in/s
-    last_sample_age_s: float | None  # since a report last showed it moving; None: not seen moving
+    last_sample_age_s: float | None  # since a report showed it moving or the monitor took a sample; None: never seen
     deadline_missed: int
     liveliness_changes: int
     samples_lost: int
     incompatible_qos: int
+    bytes_per_s: float | None = None  # serialized bytes/s the monitor's own reader takes; None: not read by it
+    monitor_rate: float | None = None  # samples/s the monitor's own reader takes; None: not read by it
+
+
+@dataclass
+class MeasuredFlow:
+    """What the monitor's own raw reader measured of a topic (None: not yet, or not read)."""
+
+    samples_per_s: float | None
+    bytes_per_s: float | None
+    last_sample_age_s: float | None
+
+
+@dataclass
+class Vehicle:
+    """The vehicle's state as the monitor's readers last saw it; None where unknown (no sample yet, not read)."""
+
+    alert: list[str] | None = None  # the active alerts (DriverAlerts' member names); []: all clear
+    alert_texts: list[str] | None = None  # the same as the HMI words them
+    alert_age_s: float | None = None  # since the alert state was taken
+    redundant: bool | None = None  # the alert came through the exclusive reader (redundant mode)
+    alert_owner: str | None = None  # redundant mode: the instance that owns the alerts (its writer's entity name)
+    alert_owner_strength: int | None = None
+    speed_kmh: float | None = None  # PlatformStatus.vehSpd
+    steer_angle: float | None = None  # PlatformStatus.vehicleSteerAngle
+    blinker: str | None = None  # PlatformStatus.blinkerStatus (INDICATOR_OFF, _LEFT, _RIGHT, _HAZARD)
+    status_age_s: float | None = None
+    command_speed: float | None = None  # PlatformControl: what collision avoidance commands
+    command_steer_angle: float | None = None
+    command_blinker: str | None = None
+    command_age_s: float | None = None
+    fused_objects: int | None = None  # objects in the newest SensorObjects list
+    fused_objects_age_s: float | None = None
+    lidar_points: int | None = None
+    lidar_image_at: float | None = None  # time.time() of the cloud the LiDAR picture shows (changes at most every 2 s)
+    lidar_age_s: float | None = None
+    camera_program: str | None = None  # the camera_sub whose /diagnostics the camera figures come from
+    camera_rate: float | None = None  # frames/s camera_sub receives
+    camera_latency_ms: float | None = None  # camera_sub's median latency, ms
+
+    def to_dict(self) -> dict[str, Any]:
+        found = dict(vars(self))
+        at = self.lidar_image_at
+        found["lidar_image_at"] = None if at is None else (
+            time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(at)) + f".{int(at * 1000) % 1000:03d}Z")
+        return found
 
 
 @dataclass
@@ -201,6 +248,7 @@ class Snapshot:
     notices: list[Notice]
     flows: list[Flow]
     programs: list[ProgramHealth]
+    vehicle: Vehicle = field(default_factory=Vehicle)
 
     def participant(self, key: str) -> Participant | None:
         return next((p for p in self.participants if p.key == key), None)
@@ -220,6 +268,7 @@ class Snapshot:
             "notices": [vars(n) for n in self.notices],
             "flows": [vars(f) for f in self.flows],
             "programs": [vars(p) for p in self.programs],
+            "vehicle": self.vehicle.to_dict(),
         }
 
     def to_json(self, indent: int | None = 2) -> str:
@@ -236,8 +285,14 @@ def _participant(record: ParticipantRecord) -> Participant:
 
 def analyse(domain: int, participant_records: Iterable[ParticipantRecord], endpoint_records: Iterable[EndpointRecord],
             reports: Iterable[ProgramReport] = (), moved_ago: dict[str, float] | None = None,
-            taken_at: float | None = None) -> Snapshot:
-    """The snapshot of the domain: ``moved_ago``: per topic, seconds since a report last showed it moving."""
+            taken_at: float | None = None, measured: dict[str, MeasuredFlow] | None = None,
+            vehicle: Vehicle | None = None) -> Snapshot:
+    """The snapshot of the domain: ``moved_ago``: per topic, seconds since a report last showed it moving;
+    ``measured``: per topic, what the monitor's own readers measured; ``vehicle``: the vehicle's state.
+
+    The monitor's own readers of the flows (its participant's: ``own``; its rt/diagnostics reader is a reader like
+    any) are in the graph and the matches, but in no mismatch and no notice: they are probes that read whatever they
+    can, not what a user has to fix; nor do they count as a topic's reader."""
     participants = {record.key: _participant(record) for record in participant_records}
     endpoints: list[Endpoint] = []
     for record in endpoint_records:
@@ -264,12 +319,15 @@ def analyse(domain: int, participant_records: Iterable[ParticipantRecord], endpo
     for topic in topics.values():
         for reader_key in topic.readers:
             reader = by_key[reader_key]
+            own = participants[reader.participant].own and topic.name != DIAGNOSTICS_TOPIC  # its probes
             reader_vendor = participants[reader.participant].vendor
             for writer_key in topic.writers:
                 writer = by_key[writer_key]
                 writer_vendor = participants[writer.participant].vendor
                 reasons = mismatch_reasons(writer.qos, reader.qos)
                 said = hints(writer.qos, reader.qos, writer_vendor, reader_vendor, reasons)
+                if reasons and own:
+                    continue
                 if reasons:
                     mismatches.append(Mismatch(topic.name, writer.key, reader.key, writer.participant_name,
                                                reader.participant_name, reasons, said))
@@ -278,6 +336,8 @@ def analyse(domain: int, participant_records: Iterable[ParticipantRecord], endpo
                                          reader.participant_name, said))
                     writer.matched.append(reader.key)
                     reader.matched.append(writer.key)
+            if own:
+                continue
             if not topic.writers:
                 notices.append(Notice("reader without writer", topic.name, reader.key,
                                       f"{reader.participant_name} reads {topic.name}: no writer of this topic "
@@ -286,7 +346,8 @@ def analyse(domain: int, participant_records: Iterable[ParticipantRecord], endpo
                 notices.append(Notice("reader matched no writer", topic.name, reader.key,
                                       f"{reader.participant_name} reads {topic.name}: none of its "
                                       f"{len(topic.writers)} writer(s) matches (see the mismatches)"))
-        if topic.writers and not topic.readers:
+        if topic.writers and all(participants[by_key[key].participant].own and topic.name != DIAGNOSTICS_TOPIC
+                                 for key in topic.readers):
             names = sorted({by_key[key].participant_name for key in topic.writers})
             notices.append(Notice("topic without reader", topic.name, None,
                                   f"{topic.name} is written ({', '.join(names)}) and read by nobody"))
@@ -309,7 +370,8 @@ def analyse(domain: int, participant_records: Iterable[ParticipantRecord], endpo
     return Snapshot(domain, time.time() if taken_at is None else taken_at,
                     sorted(participants.values(), key=lambda p: (p.own, p.name, p.key)),
                     sorted(topics.values(), key=lambda t: t.name), endpoints, matches, mismatches, notices,
-                    flows(report_list, moved_ago or {}), sorted(programs, key=lambda p: p.name))
+                    flows(report_list, moved_ago or {}, measured or {}), sorted(programs, key=lambda p: p.name),
+                    vehicle or Vehicle())
 
 
 def _health(report: ProgramReport) -> ProgramHealth:
@@ -334,8 +396,10 @@ def _number(text: str) -> float:
     return value if value == value and abs(value) != float("inf") else 0.0  # NaN and infinities: nothing
 
 
-def flows(reports: list[ProgramReport], moved_ago: dict[str, float]) -> list[Flow]:
-    """The flows per topic from the programs' reports (their samples in and out per second and event counts)."""
+def flows(reports: list[ProgramReport], moved_ago: dict[str, float],
+          measured: dict[str, MeasuredFlow] | None = None) -> list[Flow]:
+    """The flows per topic from the programs' reports (their samples in and out per second and event counts) and
+    what the monitor's own readers measured (``measured``: bytes/s, samples/s, the last sample's age)."""
     found: dict[str, Flow] = {}
 
     def flow(topic: str) -> Flow:
@@ -359,8 +423,18 @@ def flows(reports: list[ProgramReport], moved_ago: dict[str, float]) -> list[Flo
                         setattr(item, name, getattr(item, name) + int(_number(value)))
     # /diagnostics itself is no data flow: its writers are in no program's traffic count, by design.
     found.pop(DIAGNOSTICS_TOPIC, None)
+    for topic, seen in (measured or {}).items():
+        if topic == DIAGNOSTICS_TOPIC or (topic not in found and seen.last_sample_age_s is None):
+            continue  # a flow nobody reports and the monitor never saw is no flow
+        item = flow(topic)
+        item.bytes_per_s, item.monitor_rate = seen.bytes_per_s, seen.samples_per_s
+        if seen.last_sample_age_s is not None and (item.last_sample_age_s is None
+                                                   or seen.last_sample_age_s < item.last_sample_age_s):
+            item.last_sample_age_s = seen.last_sample_age_s
     for item in found.values():
         item.rate = round(sum(item.writers.values()) if item.writers else max(item.readers.values(), default=0.0), 3)
+        if not item.writers and not item.readers and item.monitor_rate is not None:
+            item.rate = item.monitor_rate  # nobody reports it: what the monitor takes
         if item.last_sample_age_s is not None:
             item.last_sample_age_s = round(item.last_sample_age_s, 1)
     return sorted(found.values(), key=lambda f: f.topic)

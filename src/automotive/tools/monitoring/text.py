@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 
-from automotive.tools.monitoring.model import Snapshot
+from automotive.tools.monitoring.model import Snapshot, Vehicle
 from automotive.tools.monitoring.rules import duration_words
 
 NAME_WIDTH = 48
@@ -87,15 +87,20 @@ def render(snapshot: Snapshot) -> str:
         add(f"  {cut(notice.words, MESSAGE_WIDTH)}")
 
     add("")
-    add("Flows (from the programs' /diagnostics)")
+    add("Flows (from the programs' /diagnostics and the monitor's own readers)")
     if not snapshot.flows:
         add("  (no program reports on rt/diagnostics)")
     for flow in snapshot.flows:
         age = "never seen moving" if flow.last_sample_age_s is None else f"last sample {flow.last_sample_age_s:g} s ago"
         readers = ", ".join(f"{cut(name)} {rate:g}/s" for name, rate in flow.readers.items()) or "none"
-        add(f"  {cut(flow.topic)}: {flow.rate:g} samples/s, {age}; read by {readers}; "
+        size = "" if flow.bytes_per_s is None else f", {byte_rate(flow.bytes_per_s)}"
+        add(f"  {cut(flow.topic)}: {flow.rate:g} samples/s{size}, {age}; read by {readers}; "
             f"deadline missed {flow.deadline_missed}, liveliness changes {flow.liveliness_changes}, "
             f"samples lost {flow.samples_lost}, incompatible QoS {flow.incompatible_qos}")
+
+    add("")
+    add("Vehicle")
+    lines.extend(f"  {line}" for line in vehicle_lines(snapshot.vehicle))
 
     add("")
     add("Programs (/diagnostics)")
@@ -105,3 +110,41 @@ def render(snapshot: Snapshot) -> str:
         add(f"  {cut(program.name)}: {program.level} ({cut(program.host)}, {program.report_age_s:g} s ago): "
             f"{cut(program.message, MESSAGE_WIDTH)}")
     return "\n".join(lines) + "\n"
+
+
+def byte_rate(per_s: float) -> str:
+    for unit, size in (("MB/s", 1e6), ("kB/s", 1e3)):
+        if per_s >= size:
+            return f"{per_s / size:.3g} {unit}"
+    return f"{per_s:.3g} B/s"
+
+
+def _number(value: float | None, unit: str = "", digits: str = ".1f") -> str:
+    return "unknown" if value is None else f"{value:{digits}}{unit}"
+
+
+def vehicle_lines(vehicle: Vehicle) -> list[str]:
+    """The vehicle in a few lines: the alert (and its owner), the platform, the fused objects and LiDAR, the camera."""
+    if vehicle.alert is None:
+        alert = "alert: unknown (no alert state taken)"
+    elif vehicle.alert_texts:
+        alert = "alert: DRIVER ALERT: " + "; ".join(cut(text) for text in vehicle.alert_texts)
+    else:
+        alert = "alert: all clear"
+    if vehicle.redundant:
+        strength = "" if vehicle.alert_owner_strength is None else f", strength {vehicle.alert_owner_strength}"
+        alert += f" (redundant mode: owner {cut(vehicle.alert_owner)}{strength})"
+    platform = (f"speed {_number(vehicle.speed_kmh, ' km/h')}, steer {_number(vehicle.steer_angle, '', '.2f')}, "
+                f"blinker {vehicle.blinker or 'unknown'}")
+    if vehicle.command_age_s is not None:
+        platform += (f"; command: speed {_number(vehicle.command_speed)}, steer "
+                     f"{_number(vehicle.command_steer_angle, '', '.2f')}, "
+                     f"blinker {vehicle.command_blinker or 'unknown'}")
+    objects = (f"fused objects: {'unknown' if vehicle.fused_objects is None else vehicle.fused_objects}; LiDAR: "
+               + ("no cloud taken" if vehicle.lidar_age_s is None else
+                  f"{'unknown' if vehicle.lidar_points is None else vehicle.lidar_points} points, "
+                  f"{vehicle.lidar_age_s:g} s ago"))
+    camera = ("camera: unknown (no camera_sub reports)" if vehicle.camera_program is None else
+              f"camera: {_number(vehicle.camera_rate, ' frames/s')}, latency p50 "
+              f"{_number(vehicle.camera_latency_ms, ' ms')} ({cut(vehicle.camera_program)})")
+    return [alert, platform, objects, camera]
