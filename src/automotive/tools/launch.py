@@ -9,6 +9,7 @@
     automotive launch -D collision_avoidance:config.alertSize=1.0 -D config.domainId=7
     automotive launch --stats-dir figures               each application's --stats records in figures/<name>.jsonl
     automotive launch --stats-dir hmi:figures           only the HMI's
+    automotive launch --monitor                         and `automotive monitor`: its page on http://127.0.0.1:8780/
     automotive launch stop                              stop the running launcher (from another terminal)
     automotive launch status                            what the running launcher runs
     automotive launch --list                            the applications this version has
@@ -30,7 +31,9 @@ stop, the launcher asks it for its threads' stacks (SIGUSR1), which go to its lo
 answers SIGUSR1 the same way, and `automotive launch stop` asks it before it kills a launcher that does not end.
 
 Each application is started as ``python -m automotive.apps.<name>`` with the launcher's own interpreter, so it runs
-the same installation.
+the same installation. With --monitor the launcher also starts the monitor (``python -m automotive.tools.monitor``,
+on the same domain and network options; it is a tool, not one of the applications) beside them, watched and stopped
+like them, and says the page's URL once on the console.
 """
 
 from __future__ import annotations
@@ -95,6 +98,12 @@ DEBUG_LINE_GREP = "^[0-9:.]+ [^ ]+ debug: "  # the same, for grep -E in a window
 # Lines that must stand out: an alert raised or cleared, a lost alert source.
 ALERT_LINE = re.compile(r"DRIVER ALERT|ALERT:|all clear|All clear|alert source (lost|LOST)|no alert source")
 SUMMARY_FILE = "launch-summary.txt"
+MONITOR = "monitor"  # --monitor: the tool's name, as a label and as a program (automotive.tools.monitor)
+MONITOR_PORT = 8780  # the monitor's default (automotive.tools.monitoring.server.DEFAULT_PORT)
+# The monitor's line that gives its page's URL (automotive.tools.monitor.URL_LINE): said once by the launcher.
+MONITOR_URL_LINE = re.compile(r"^automotive monitor: the page is on (\S+)$")
+# The -D settings of every application that the monitor takes too (it refuses keys it does not read).
+MONITOR_KEYS = ("config.domainId",)
 LAUNCHER_LABEL = "launch"
 # The launcher's line once every application is started: what a program driving the launcher waits for.
 RUNNING_LINE = rf"^{LAUNCHER_LABEL}\s+\| \d+ application\(s\) running"
@@ -204,7 +213,18 @@ def plan(args: argparse.Namespace) -> tuple[list[AppSpec], list[tuple[str, str]]
                                                     *overrides_for(module, name, args.overrides)]))
         else:
             specs.append(AppSpec(module, module, [*common, *overrides_for(module, module, args.overrides), *extra]))
+    if not 0 <= args.monitor_port <= 65535:
+        raise LaunchError(f"--monitor-port {args.monitor_port}: expected a port from 0 to 65535")
+    if args.monitor and specs:
+        settings = [item for item in args.overrides if not re.match(r"^[\w-]+:", item)
+                    and item.split("=", 1)[0].strip() in MONITOR_KEYS]
+        flags = [arg for flag in ("domain", "network", "interface", "peers") if getattr(args, flag) is not None
+                 for arg in (f"--{flag}", str(getattr(args, flag)))]  # the applications' own, less redundant mode
+        specs.append(AppSpec(MONITOR, MONITOR, [*flags, "--port", str(args.monitor_port),
+                                                 *(arg for item in settings for arg in ("-D", item))]))
     for spec in specs:
+        if spec.module == MONITOR:
+            continue
         folder = stats_folder(spec.module, spec.name, args.stats_dir)
         if folder is not None:
             spec.args += ["--stats", str(folder / f"{spec.name}.jsonl")]
@@ -511,6 +531,10 @@ class Supervisor:
             app.log.flush()
         if line.stream == children.STDERR:
             app.last_error = line.text
+        page = MONITOR_URL_LINE.match(line.text) if app.spec.module == MONITOR else None
+        if page is not None:  # said once by the launcher, in every mode, --quiet too
+            self.console.say(f"the monitor's page: {page.group(1)}")
+            return
         self.console.app_line(app.name, line.text)
 
     def running(self) -> list[RunningApp]:
@@ -827,6 +851,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--redundant", action="store_true",
                         help="redundant mode: a primary and a standby of " + " and ".join(REDUNDANT_APPS) +
                              f" (ownership strengths {PRIMARY_STRENGTH} and {STANDBY_STRENGTH}), exclusive ownership")
+    parser.add_argument("--monitor", action="store_true",
+                        help="also start `automotive monitor`: the domain live on a web page (its URL is said once)")
+    parser.add_argument("--monitor-port", type=int, default=MONITOR_PORT, metavar="PORT",
+                        help=f"the monitor's page port (default {MONITOR_PORT}; 0: any free one)")
     parser.add_argument("--mode", choices=MODES, default="auto",
                         help="window, tmux or background (default auto: window if a display and a terminal "
                              "emulator exist, tmux in a terminal, background otherwise)")
