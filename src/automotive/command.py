@@ -72,6 +72,7 @@ BENCHMARKS: dict[str, Command] = {
     "codecs": Command("automotive.bench.codecs", "the generated codecs and sensor fusion's CPU"),
     "alert-latency": Command("automotive.bench.alert_latency", "vision to driver alert, end to end"),
     "console": Command("automotive.bench.console", "how many lines a second the launcher's console shows"),
+    "monitor": Command("automotive.bench.monitor", "the monitor's CPU while the whole system runs"),
 }
 GROUPS = {"run": (APPS, "application"), "bench": (BENCHMARKS, "benchmark")}
 
