@@ -5,6 +5,7 @@ own), whether it ends, fails, or is stopped with SIGTERM or Ctrl-C; a folder the
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -234,4 +235,26 @@ def test_console_counts_the_launchers_lines_and_a_short_run_is_not_judged(tmpdir
     assert re.search(r"^sensor_fusion +[1-9]\d* ", result.stdout, re.MULTILINE), result.stdout
     assert "too short to judge: the goal is over 60 s (this run: 8 s)" in lines, result.stdout
     assert re.fullmatch(r"console_lines_per_s=\d+\.\d\d", lines[-1]), lines[-1]
+    assert left_in(tmpdir_of_run) == []
+
+
+def test_monitor_measures_its_cpu_and_a_short_run_is_not_judged(tmpdir_of_run: Path, domain_id: int) -> None:
+    # Two applications are enough to see the phases and the last line; the goal's run is the whole system's.
+    result = bench("monitor", "--seconds", "3", "--warmup", "1", "--domain", str(domain_id), "--", "vision",
+                   "sensor_fusion", tmpdir=tmpdir_of_run)
+    lines = result.stdout.splitlines()
+    phases = [json.loads(line) for line in lines if line.startswith("{")]
+    assert [phase["phase"] for phase in phases] == ["warm-up", "measure"], result.stdout
+    assert phases[1]["views"] >= 2 and phases[1]["view_failures"] == 0, result.stdout
+    assert "too short to judge: the goal is over 60 s (this run: 3 s)" in lines, result.stdout
+    assert re.fullmatch(r"monitor_cpu_pct=\d+\.\d\d", lines[-1]), lines[-1]
+    assert left_in(tmpdir_of_run) == []
+
+
+@pytest.mark.parametrize("args", [["--seconds", "0"], ["--warmup", "-1"], ["--log-dir", "/proc/no-such/dir"]])
+def test_monitor_refuses_bad_arguments_in_one_line_before_starting(args: list[str], tmpdir_of_run: Path) -> None:
+    result = subprocess.run([sys.executable, "-m", "automotive.bench.monitor", *args], env=bench_env(tmpdir_of_run),
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and result.stdout == "", result.stdout + result.stderr
+    assert result.stderr.strip().splitlines()[-1].startswith("automotive bench monitor: "), result.stderr
     assert left_in(tmpdir_of_run) == []

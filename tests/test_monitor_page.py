@@ -1,0 +1,373 @@
+"""The page of ``automotive monitor`` in a real browser: Debian's headless Chromium driven by Selenium.
+
+Why: the page is what a user opens to see "why does my tool not see the data"; only a browser runs its JavaScript,
+its WebSocket and its graph library, so only a browser shows that it works. What is checked, each test saving a
+screenshot (in its tmp_path):
+
+- with the system running (``automotive launch --monitor``: the launcher starts the monitor and says its URL; the
+  camera is left out to keep the 2 cores free, so the page lists the six other flows), within 10 s of opening the
+  page it lists VisionTopic, rt/LidarTopic, SensorObjects, PlatformStatus, PlatformControl and AlertTopic with rates
+  above zero, shows every program's health, the matched pairs in the graph and the table; the vehicle's state (speed,
+  blinker, fused objects) and the alert raised and cleared as collision avoidance does (a scene whose tall truck comes
+  and goes every 6 s);
+- an RTI Connector reader requesting RELIABLE from our best-effort vision writer appears with its reason in words,
+  offered against requested, as a red edge of the graph, with RTI as its vendor;
+- a domain of 100 participants (one helper process of 100 Cyclone participants) renders within 2 s of opening the
+  page, once the monitor has discovered them;
+- --bind 0.0.0.0 without --token is refused with one line and exit code 2; with --token, a request without it gets
+  403 and the page with it works; bound to loopback, a request naming another host and a WebSocket from another
+  origin get 403.
+
+Chromium runs with --headless --no-sandbox --disable-gpu, no background networking, component updates or sync, and a
+fresh profile in tmp_path: this machine has no internet, and the page needs none (everything is served by the
+monitor). ``AUTOMOTIVE_MONITOR_SCREENSHOT=docs/monitor.png`` saves the first screen of the RTI test's page (the whole
+system and one mismatch) there as well: how the user's guide's picture is made.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pytest
+from apprunner import AppRunner
+from test_system import scene
+
+from automotive.tools.children import Child, program_command
+
+webdriver = pytest.importorskip("selenium.webdriver")
+from selenium.common.exceptions import TimeoutException  # noqa: E402
+from selenium.webdriver.chrome.options import Options  # noqa: E402
+from selenium.webdriver.chrome.service import Service  # noqa: E402
+from selenium.webdriver.remote.webdriver import WebDriver  # noqa: E402
+from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+TIMEOUT = 90.0
+PAGE_S = 10.0  # the page shows the running system within this long of being opened
+CROWD_S = 2.0  # 100 participants render within this long of opening the page
+CROWD = 100
+SIX_FLOWS = ("VisionTopic", "rt/LidarTopic", "SensorObjects", "PlatformStatus", "PlatformControl", "AlertTopic")
+PROGRAMS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "monitor")
+PAGE_LINE = r"the monitor's page: (http://\S+)"
+URL_LINE = r"^automotive monitor: the page is on (http://\S+)$"
+SCENE_ROWS = 60  # one row every 100 ms: a 6 s cycle
+TALL_ROWS = range(20, 45)  # the tall truck leads for 2.5 s of it: the alert, then all clear
+REASON = "reliability: offered BEST_EFFORT, requested RELIABLE (a RELIABLE reader matches only RELIABLE writers)"
+CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                  "--disable-component-update", "--disable-sync", "--no-first-run", "--window-size=1600,1300")
+T = TypeVar("T")
+
+# 100 lightweight participants in one process (they share its domain and participant index), each named.
+CROWD_SCRIPT = r'''
+import sys
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.qos import Policy, Qos
+domain, count = int(sys.argv[1]), int(sys.argv[2])
+crowd = [DomainParticipant(domain, qos=Qos(Policy.EntityName(f"crowd-{i:03d}"))) for i in range(count)]
+print(f"crowd of {len(crowd)} participants", flush=True)
+sys.stdin.read()
+'''
+
+
+# -- the browser ------------------------------------------------------------------------------------------------------
+@pytest.fixture
+def browser(tmp_path: Path) -> Iterator[WebDriver]:
+    chromium, driver = shutil.which("chromium"), shutil.which("chromedriver")
+    if chromium is None or driver is None:
+        pytest.fail("chromium and chromedriver are missing: scripts/setup installs them (Debian's chromium, "
+                    "chromium-driver)")
+    options = Options()
+    options.binary_location = chromium
+    for flag in (*CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'chromium-profile'}"):
+        options.add_argument(flag)
+    service = Service(executable_path=driver, log_output=str(tmp_path / "chromedriver.log"))
+    browser = webdriver.Chrome(options=options, service=service)
+    try:
+        yield browser
+    finally:
+        browser.quit()
+
+
+def screenshot(browser: WebDriver, path: Path) -> Path:
+    """The whole page (as tall as its content) as a PNG."""
+    height = browser.execute_script("return document.documentElement.scrollHeight")
+    browser.set_window_size(1600, max(900, min(int(height) + 40, 4000)))
+    browser.save_screenshot(str(path))
+    browser.set_window_size(1600, 1300)
+    return path
+
+
+def until(browser: WebDriver, check: Callable[[WebDriver], T], timeout: float, what: str, shot: Path) -> T:
+    """``check`` again until it returns something true (bounded); on timeout, the screenshot and the page's text."""
+    try:
+        return WebDriverWait(browser, timeout, poll_frequency=0.1).until(check)  # type: ignore[no-any-return]
+    except TimeoutException:
+        screenshot(browser, shot)
+        text = browser.execute_script("return document.body.innerText")
+        raise AssertionError(f"the page did not show {what} within {timeout:g} s (screenshot {shot}); its text:\n"
+                             f"{str(text)[:5000]}") from None
+
+
+def flows(browser: WebDriver) -> dict[str, float]:
+    """The flows table: topic -> samples/s (NaN where the page shows none)."""
+    found: list[list[Any]] = browser.execute_script(
+        "return [...document.querySelectorAll('#flows tbody tr[data-topic]')]"
+        ".map((row) => [row.dataset.topic, Number(row.dataset.rate)])")
+    return {topic: rate for topic, rate in found}
+
+
+def page_state(browser: WebDriver) -> dict[str, Any]:
+    state: dict[str, Any] = browser.execute_script("""
+        const graph = document.getElementById('graph');
+        return {status: document.getElementById('status').dataset.state,
+                updates: Number(document.body.dataset.updates || 0),
+                nodes: Number(graph.dataset.nodes), edges: Number(graph.dataset.edges),
+                mismatchEdges: Number(graph.dataset.mismatchEdges || 0),
+                participants: document.querySelectorAll('#participants tbody tr[data-name]').length,
+                programs: Object.fromEntries([...document.querySelectorAll('#programs tbody tr[data-program]')]
+                    .map((row) => [row.dataset.program, row.dataset.level])),
+                matches: [...document.querySelectorAll('#matches tbody tr[data-topic]')]
+                    .map((row) => [...row.cells].slice(0, 3).map((cell) => cell.textContent)),
+                alert: document.getElementById('alert').dataset.state,
+                alertText: document.getElementById('alert-text').textContent,
+                speed: document.getElementById('speed').textContent,
+                blinker: document.getElementById('blinker').textContent,
+                fused: document.getElementById('fused').textContent};
+    """)
+    return state
+
+
+# -- the monitor and the system ---------------------------------------------------------------------------------------
+def get(url: str, headers: dict[str, str] | None = None) -> tuple[int, bytes]:
+    request = urllib.request.Request(url, headers=headers or {})
+    try:
+        with urllib.request.urlopen(request, timeout=30) as response:
+            return int(response.status), response.read()
+    except urllib.error.HTTPError as error:
+        return error.code, error.read()
+
+
+def snapshot(url: str, following: bool = False) -> dict[str, Any]:
+    """The monitor's latest snapshot (/snapshot.json, the token of ``url`` with it); ``following``: the next one."""
+    base, _, query = url.partition("?")
+    query = "&".join(part for part in (query, "next=1" if following else "") if part)
+    status, body = get(f"{base}snapshot.json" + (f"?{query}" if query else ""))
+    assert status == 200, body[:500]
+    document: dict[str, Any] = json.loads(body)
+    return document
+
+
+def snapshot_until(url: str, check: Callable[[dict[str, Any]], bool], what: str,
+                   timeout: float = TIMEOUT) -> dict[str, Any]:
+    deadline = time.monotonic() + timeout
+    while True:
+        document = snapshot(url, following=True)  # each the next one: one a second
+        if check(document):
+            return document
+        if time.monotonic() > deadline:
+            raise AssertionError(f"the monitor did not see {what} within {timeout:g} s; last snapshot:\n"
+                                 f"{json.dumps(document, indent=1)[:5000]}")
+
+
+def start_monitor(runner: AppRunner, domain: int, *args: str) -> tuple[Child, str]:
+    monitor = runner.start("monitor", "--domain", str(domain), "--port", "0", *args)
+    line = monitor.wait_for(URL_LINE, timeout=TIMEOUT)
+    match = re.search(URL_LINE, line)
+    assert match is not None, line
+    return monitor, match.group(1)
+
+
+class System:
+    def __init__(self, launcher: Child, url: str, domain: int):
+        self.launcher = launcher
+        self.url = url
+        self.domain = domain
+
+
+@pytest.fixture(scope="module")
+def system(module_domain_id: int, tmp_path_factory: pytest.TempPathFactory) -> Iterator[System]:
+    """``automotive launch --monitor`` on the module's domain, all but the camera, with a scene whose tall truck
+    raises the alert for 2.5 s of every 6 s."""
+    work = tmp_path_factory.mktemp("system")
+    runner = AppRunner(work)
+    data = scene(work / "scene.csv", SCENE_ROWS, TALL_ROWS)
+    launcher = runner.start_command("automotive launch", program_command(
+        "launch", "--mode", "background", "--domain", str(module_domain_id), "--monitor", "--monitor-port", "0",
+        "--except", "camera_pub,camera_sub", "-D", f"vision:dataFile={data}", "--log-dir", str(work / "logs")),
+        env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    try:
+        line = launcher.wait_for(rf"^launch\s+\| {PAGE_LINE}$", timeout=TIMEOUT)
+        match = re.search(PAGE_LINE, line)
+        assert match is not None, line
+        launcher.wait_for(r"7 application\(s\) running", timeout=TIMEOUT)
+        yield System(launcher, match.group(1), module_domain_id)
+    finally:
+        runner.stop_all()
+
+
+def this_system(document: dict[str, Any]) -> bool:
+    """Every program of the system reports, and its six flows have moved (another run of the suite on this host
+    may use the same domain id: these are names, which that run's programs share, so the checks stay loose)."""
+    moving = {flow["topic"] for flow in document["flows"] if (flow.get("rate") or 0) > 0}
+    return set(PROGRAMS) <= {p["name"] for p in document["programs"]} and set(SIX_FLOWS[:-1]) <= moving
+
+
+# -- the tests --------------------------------------------------------------------------------------------------------
+def test_the_launched_system_shows_its_six_flows_moving_its_health_and_the_vehicle_within_10_s(
+        system: System, browser: WebDriver, tmp_path: Path) -> None:
+    snapshot_until(system.url, this_system, "the system's programs and flows")
+    # The launcher says the page's URL once, in its own name.
+    assert len(re.findall(PAGE_LINE, system.launcher.output)) == 1, system.launcher.output[-3000:]
+    shot = tmp_path / "system.png"
+    opened = time.monotonic()
+    browser.get(system.url)
+    seen: set[str] = set()  # the flows seen moving (the alert moves while it is raised, and in a burst when it ends)
+
+    def six_flows_moving(page: WebDriver) -> bool:
+        seen.update(topic for topic, rate in flows(page).items() if rate > 0)
+        return set(SIX_FLOWS) <= seen
+
+    until(browser, six_flows_moving, PAGE_S - (time.monotonic() - opened), "the six flows moving", shot)
+    state = until(browser, lambda page: (lambda s: s if set(PROGRAMS) <= set(s["programs"])
+                                         and s["status"] == "live" else None)(page_state(page)),
+                  PAGE_S - (time.monotonic() - opened), "every program's health", shot)
+    assert time.monotonic() - opened <= PAGE_S
+    assert all(state["programs"][name] in ("OK", "WARN") for name in PROGRAMS), state["programs"]
+    pairs = {tuple(row) for row in state["matches"]}
+    assert {("VisionTopic", "vision", "sensor_fusion"), ("rt/LidarTopic", "lidar", "sensor_fusion"),
+            ("SensorObjects", "sensor_fusion", "collision_avoidance"), ("AlertTopic", "collision_avoidance", "hmi"),
+            ("PlatformControl", "collision_avoidance", "vehicle_platform"),
+            ("PlatformStatus", "vehicle_platform", "collision_avoidance")} <= pairs, pairs
+    assert state["nodes"] >= len(PROGRAMS) and state["edges"] >= 6, state
+
+    if "vehicle" not in snapshot(system.url):
+        screenshot(browser, shot)
+        pytest.skip("the snapshot has no 'vehicle' yet (the monitor's own readers): the vehicle is not checked")
+    until(browser, lambda page: (lambda s: s["speed"] != "\u2014" and s["blinker"] != "\u2014"
+                                 and s["fused"] != "\u2014")(page_state(page)),
+          PAGE_S - (time.monotonic() - opened), "the vehicle's speed, blinker and fused objects", shot)
+    # Collision avoidance raises the alert while the tall truck leads and clears it when the truck has gone.
+    until(browser, lambda page: page_state(page)["alert"] == "raised", TIMEOUT, "the alert raised", shot)
+    raised = page_state(browser)
+    assert "attention" in raised["alertText"].lower(), raised
+    until(browser, lambda page: page_state(page)["alert"] == "clear", TIMEOUT, "the alert cleared", shot)
+    until(browser, lambda page: page_state(page)["alert"] == "raised", TIMEOUT, "the alert raised again", shot)
+    screenshot(browser, shot)
+
+
+def test_an_rti_reader_requesting_reliable_from_best_effort_vision_shows_its_reason_in_words(
+        system: System, browser: WebDriver, tmp_path: Path) -> None:
+    from rti_peer import RtiPeer
+
+    shot = tmp_path / "rti-mismatch.png"
+    with RtiPeer(system.domain, readers={"Vision": "ReliableReader"}):
+        browser.get(system.url)
+
+        def rti_mismatch(page: WebDriver) -> Any:
+            found = page.execute_script("""
+                for (const box of document.querySelectorAll('#mismatches .mismatch[data-topic="VisionTopic"]')) {
+                  if (box.dataset.writer === 'vision' && box.querySelector('.pair').textContent.includes('(RTI)')) {
+                    return {pair: box.querySelector('.pair').textContent,
+                            reasons: [...box.querySelectorAll('li.reason')].map((li) => li.textContent)};
+                  }
+                }
+                return null;""")
+            return found if found and page_state(page)["mismatchEdges"] >= 1 else None
+
+        found = until(browser, rti_mismatch, TIMEOUT, "the RTI reader's mismatch", shot)
+        assert found["reasons"] == [REASON], found
+        assert re.match(r"VisionTopic: writer vision \(Cyclone\) \u2192 reader .+ \(RTI\) do not match$",
+                        found["pair"]), found
+        notices = browser.execute_script(
+            "return [...document.querySelectorAll('#notices li')].map((li) => [li.dataset.kind, li.textContent])")
+        assert any(kind == "reader matched no writer" and "VisionTopic" in text for kind, text in notices), notices
+        participants = browser.execute_script(
+            "return [...document.querySelectorAll('#participants tbody tr[data-vendor]')].map((r) => r.dataset.vendor)")
+        assert "RTI Connext DDS" in participants
+        wanted = os.environ.get("AUTOMOTIVE_MONITOR_SCREENSHOT")
+        if wanted:  # the user's guide's picture: the first screen of the page
+            browser.execute_script("window.scrollTo(0, 0)")
+            browser.save_screenshot(wanted)
+        screenshot(browser, shot)
+
+
+def test_a_domain_of_100_participants_renders_within_2_s_of_opening_the_page(
+        domain_id: int, browser: WebDriver, tmp_path: Path) -> None:
+    runner = AppRunner(tmp_path)
+    try:
+        crowd = runner.start_command("crowd", [sys.executable, "-c", CROWD_SCRIPT, str(domain_id), str(CROWD)],
+                                     stdin=True)
+        crowd.wait_for(rf"crowd of {CROWD} participants", timeout=TIMEOUT)
+        _, url = start_monitor(runner, domain_id)
+        snapshot_until(url, lambda d: sum(p["name"].startswith("crowd-") for p in d["participants"]) >= CROWD,
+                       f"the {CROWD} participants")
+        shot = tmp_path / "crowd.png"
+        opened = time.monotonic()
+        browser.get(url)
+        state = until(browser, lambda page: (lambda s: s if s["nodes"] > CROWD and s["participants"] > CROWD
+                                             else None)(page_state(page)), CROWD_S, f"{CROWD} participants", shot)
+        took = time.monotonic() - opened
+        print(f"{CROWD} participants rendered {took:.2f} s after opening the page")
+        screenshot(browser, shot)
+        assert took <= CROWD_S, f"{took:.2f} s"
+        assert state["status"] == "live"
+    finally:
+        runner.stop_all()
+
+
+def test_binding_beyond_loopback_needs_a_token_and_every_request_then_carries_it(
+        domain_id: int, browser: WebDriver, tmp_path: Path) -> None:
+    refused = subprocess.run(program_command("monitor", "--domain", str(domain_id), "--bind", "0.0.0.0"),
+                             capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 2 and refused.stdout == "", refused
+    assert re.fullmatch(r"automotive monitor: --bind 0\.0\.0\.0: serving beyond this host needs --token T .*\n",
+                        refused.stderr), refused.stderr
+
+    runner = AppRunner(tmp_path)
+    try:
+        _, url = start_monitor(runner, domain_id, "--bind", "0.0.0.0", "--token", "s3cret-t0ken")
+        base = url.partition("?")[0]
+        assert url == f"{base}?token=s3cret-t0ken" and base.startswith("http://127.0.0.1:")
+        for path in ("", "static/app.js", "snapshot.json", "ws"):
+            assert get(base + path)[0] == 403, path
+            assert get(f"{base}{path}?token=wrong")[0] == 403, path
+        status, body = get(url)
+        assert status == 200 and b"automotive monitor" in body
+        status, body = get(base + "snapshot.json", {"Authorization": "Bearer s3cret-t0ken"})
+        assert status == 200 and json.loads(body)["domain"] == domain_id
+        # The browser: the page with the token, then its files and its WebSocket by the cookie the page set.
+        shot = tmp_path / "token.png"
+        browser.get(url)
+        until(browser, lambda page: page_state(page)["status"] == "live" and page_state(page)["updates"] >= 2,
+              PAGE_S, "live snapshots", shot)
+        screenshot(browser, shot)
+        browser.get(base)  # the cookie stands for the token
+        until(browser, lambda page: page_state(page)["status"] == "live", PAGE_S, "live snapshots by the cookie", shot)
+        browser.delete_all_cookies()
+        browser.get(base)
+        assert "403" in browser.execute_script("return document.body.innerText")
+    finally:
+        runner.stop_all()
+
+
+def test_a_loopback_page_refuses_other_host_names_and_websockets_of_other_origins(system: System,
+                                                                                 tmp_path: Path) -> None:
+    assert get(system.url)[0] == 200
+    port = system.url.split(":")[2].strip("/")
+    assert get(system.url, {"Host": f"attacker.example:{port}"})[0] == 403  # DNS rebinding
+    assert get(system.url, {"Host": f"localhost:{port}"})[0] == 200
+    upgrade = {"Connection": "Upgrade", "Upgrade": "websocket", "Sec-WebSocket-Version": "13",
+               "Sec-WebSocket-Key": "dGhlIHNhbXBsZSBub25jZQ=="}
+    assert get(system.url + "ws", {**upgrade, "Origin": "http://attacker.example"})[0] == 403
+    assert get(system.url + "static/../server.py")[0] == 404
