@@ -8,6 +8,7 @@ the build requirements' wheels there).
 from __future__ import annotations
 
 import importlib.metadata
+import json
 import os
 import re
 import shutil
@@ -133,5 +134,24 @@ def test_the_launcher_runs_the_system_from_an_empty_folder(installed: Installati
         summary = (installed.home / "logs" / "launch-summary.txt").read_text()
         assert len(re.findall(r"stopped on SIGTERM, exit code 0", summary)) == 4, summary
         assert "python -m automotive.apps.hmi" in launcher.output
+    finally:
+        runner.stop_all()
+
+
+def test_the_monitor_answers_once_and_in_json_from_an_empty_folder(installed: Installation, domain_id: int) -> None:
+    runner = AppRunner(installed.home)
+    vision = runner.start_command("automotive-vision", [str(installed.bin / "automotive-vision"), "--domain",
+                                                        str(domain_id)], env=installed.env)
+    try:
+        vision.wait_for(r"vision: status: ", timeout=60)  # publishing, with its /diagnostics
+        before = sorted(installed.home.iterdir())
+        text = installed.run("automotive", "monitor", "--once", "--domain", str(domain_id), "--wait", "3")
+        assert text.returncode == 0, text.stdout + text.stderr
+        assert re.search(r"^\s*vision\b", text.stdout, re.M) and "VisionTopic" in text.stdout, text.stdout
+        document = installed.run("automotive", "monitor", "--json", "--domain", str(domain_id), "--wait", "3")
+        assert document.returncode == 0, document.stderr
+        names = {participant.get("name") for participant in json.loads(document.stdout)["participants"]}
+        assert "vision" in names, names
+        assert sorted(installed.home.iterdir()) == before  # it writes no file
     finally:
         runner.stop_all()
