@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 from apprunner import AppRunner, CommandProcess
 
-from automotive.apps.hmi import ALERT_TEXTS
+from automotive.bus.alerts import ALERT_TEXTS
 from automotive.tools import netlab
 from automotive.tools.children import program_command
 

@@ -36,6 +36,7 @@ from typing import Any, Protocol
 
 from cyclonedds.core import GuardCondition
 
+from automotive.bus.alerts import alert_texts
 from automotive.bus.app import Application, build_parser, run
 from automotive.bus.cli import EXIT_BAD_INPUT
 from automotive.bus.diagnostics import ERROR, OK, Problem
@@ -48,18 +49,6 @@ from automotive.types.Alerts import DriverAlerts
 PROPERTY_KEYS = PropertyKeys.of(roles=["Alerts"])
 
 NAME = "hmi"
-ALERT_TEXTS = {
-    "blindSpotDriver": "Vehicle in the blind spot, driver side",
-    "blindSpotPassenger": "Vehicle in the blind spot, passenger side",
-    "frontCollision": "Front collision warning",
-    "backCollision": "Rear collision warning",
-    "parkingCollision": "Parking collision warning",
-    "driverAttention": "Driver attention required",
-}
-
-
-def alert_texts(alert: DriverAlerts) -> list[str]:
-    return [text for flag, text in ALERT_TEXTS.items() if getattr(alert, flag)]
 
 
 class Shown(enum.Enum):

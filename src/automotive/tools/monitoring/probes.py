@@ -36,6 +36,7 @@ from cyclonedds.core import DDSException
 from cyclonedds.qos import DataReaderQos, Policy
 from cyclonedds.sub import DataReader
 
+from automotive.bus import alerts
 from automotive.bus.checkedreader import decoder
 from automotive.bus.endpoints import Databus
 from automotive.bus.qos import READER_REPRESENTATION
@@ -64,14 +65,6 @@ LIDAR_SIZE = (640, 320)
 TAKE_LIMIT = 256
 # camera_sub's /diagnostics figure: "N frames, latency p50 X ms, ..."
 CAMERA_LATENCY = re.compile(r"latency p50 ([0-9.]+) ms")
-ALERT_TEXTS = {
-    "blindSpotDriver": "Vehicle in the blind spot, driver side",
-    "blindSpotPassenger": "Vehicle in the blind spot, passenger side",
-    "frontCollision": "Front collision warning",
-    "backCollision": "Rear collision warning",
-    "parkingCollision": "Parking collision warning",
-    "driverAttention": "Driver attention required",
-}
 SHOWN = (DriverAlerts, PlatformStatus, PlatformControl, SensorObjectList)
 
 
@@ -317,9 +310,8 @@ class Probes:
             alert = self._decoded(DriverAlerts)
             if alert is not None:
                 sample, latest = alert
-                names = [name for name in ALERT_TEXTS if bool(getattr(sample, name, False))]
-                vehicle.alert = names
-                vehicle.alert_texts = [ALERT_TEXTS[name] for name in names]
+                vehicle.alert = alerts.raised(sample)
+                vehicle.alert_texts = alerts.alert_texts(sample)
                 vehicle.alert_age_s = round(now - latest.at, 1)
                 vehicle.redundant = latest.exclusive
                 if latest.exclusive:
