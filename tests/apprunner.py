@@ -12,16 +12,31 @@ from pathlib import Path
 
 from automotive.tools.children import DEFAULT_TIMEOUT, Child, program_command
 
-__all__ = ["DEFAULT_TIMEOUT", "AppProcess", "AppRunner", "CommandProcess"]
+__all__ = ["DEFAULT_SIGINT", "DEFAULT_TIMEOUT", "AppProcess", "AppRunner", "CommandProcess", "signal_state"]
 
 CommandProcess = Child
+# Every child of a test starts with SIGINT at its default action (coreutils' env resets it, then runs the command in
+# its place). A signal ignored in a process stays ignored in the programs it starts, and C libraries in the test
+# process may ignore SIGINT for a moment (glibc's system(), which RTI's core calls, ignores it while its command runs):
+# a child started then would never see the Ctrl-C a test sends it (seen: a benchmark that ran to its end, exit 0).
+DEFAULT_SIGINT = ["env", "--default-signal=INT"]
+
+
+def signal_state(pid: int) -> str:
+    """A process's ignored and blocked signals (for a failure message: why it did not stop)."""
+    try:
+        lines = Path(f"/proc/{pid}/status").read_text().splitlines()
+    except OSError:
+        return "gone"
+    return ", ".join(line for line in lines if line.startswith(("SigIgn", "SigBlk", "SigCgt")))
 
 
 class AppProcess(Child):
     """One program, ``python -m automotive.<apps|tools>.<name> <args>``."""
 
     def __init__(self, name: str, args: list[str], cwd: Path, env: dict[str, str] | None = None):
-        super().__init__(name, program_command(name, *args), cwd=cwd, env={**os.environ, **(env or {})})
+        super().__init__(name, [*DEFAULT_SIGINT, *program_command(name, *args)], cwd=cwd,
+                         env={**os.environ, **(env or {})})
 
 
 class AppRunner:
@@ -38,8 +53,8 @@ class AppRunner:
                       stdin: bool = False, separate_stderr: bool = False) -> Child:
         """Start any command (stopped at the end like the applications); ``name`` labels its failures;
         ``separate_stderr``: its lines are stdout's only (a program whose library logs to stderr in pieces)."""
-        process = Child(name, command, cwd=self.root, env={**os.environ, **(env or {})}, stdin=stdin,
-                        separate_stderr=separate_stderr)
+        process = Child(name, [*DEFAULT_SIGINT, *command], cwd=self.root, env={**os.environ, **(env or {})},
+                        stdin=stdin, separate_stderr=separate_stderr)
         self.processes.append(process)
         return process
 

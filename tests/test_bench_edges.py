@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from apprunner import DEFAULT_SIGINT, signal_state
 
 from automotive.bench import soak
 from automotive.tools import netlab
@@ -166,12 +167,17 @@ def test_discovery_leaves_no_folder(tmpdir_of_run: Path, domain_id: int) -> None
 @pytest.mark.skipif(NAMESPACES is not None, reason=f"the discovery benchmark: {NAMESPACES}")
 def test_discovery_stopped_with_ctrl_c_removes_its_folder_and_namespace(tmpdir_of_run: Path, domain_id: int,
                                                                         started: list[Child]) -> None:
-    command = [sys.executable, "-m", "automotive.bench.discovery", "--age", "120", "--domain", str(domain_id)]
+    command = [*DEFAULT_SIGINT, sys.executable, "-m", "automotive.bench.discovery", "--age", "120", "--domain",
+               str(domain_id)]
     child = Child("discovery", command, env=bench_env(tmpdir_of_run))
     started.append(child)
     child.wait_for(r"application\(s\) running", timeout=START_TIMEOUT_S)
+    state = signal_state(child.pid)
     child.send_signal(signal.SIGINT)  # to the benchmark alone: it stops what it started
-    assert child.wait_exit(timeout=120) != 0
+    try:
+        assert child.wait_exit(timeout=120) != 0
+    except subprocess.TimeoutExpired:
+        raise AssertionError(f"the benchmark did not end on SIGINT (its signals when sent: {state})") from None
     assert left_in(tmpdir_of_run) == []
     assert f"bench-discovery-{child.pid}" not in namespaces()
 

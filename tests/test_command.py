@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import pytest
+from apprunner import DEFAULT_SIGINT, signal_state
 
 from automotive import command
 from automotive.bus.version import DISTRIBUTION
@@ -86,10 +87,11 @@ def test_the_fast_paths_off_are_said_with_why() -> None:
 def test_ctrl_c_ends_a_benchmark_without_a_traceback(domain_id: int) -> None:
     import signal
 
-    process = subprocess.Popen([*AUTOMOTIVE, "bench", "filter", "--domain", str(domain_id)], stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)
+    process = subprocess.Popen([*DEFAULT_SIGINT, *AUTOMOTIVE, "bench", "filter", "--domain", str(domain_id)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert process.stdout is not None
     assert process.stdout.readline()  # it runs
+    state = signal_state(process.pid)
     process.send_signal(signal.SIGINT)
     _, errors = process.communicate(timeout=60)
-    assert process.returncode == 130 and "Traceback" not in errors, errors
+    assert process.returncode == 130 and "Traceback" not in errors, f"{errors} (signals when sent: {state})"
