@@ -2,8 +2,9 @@
 
 Data flow:  LFSR pattern (automotive.sim.lfsr)  -->  CameraImage::CameraImageData on CameraImageData (keyed by
 config.ddsId), one frame every config.pubInterval ms (0: as fast as flow control allows), seqnum 1, 2, 3, ...
-With config.transport=shm the frames go to same-host subscribers through shared memory (automotive.wire.shm), and on DDS
-only while a DDS reader is matched.
+Subscribers on this host get the frames through shared memory (iceoryx2, automotive.wire.shm), every other reader
+(another host, another vendor's tool) on DDS, which writes only while such a reader is matched; config.transport=udp
+sends on DDS only.
 """
 
 from __future__ import annotations
@@ -15,18 +16,19 @@ from typing import Any
 
 from cyclonedds.core import DDSException
 
-from automotive.bus import console
 from automotive.bus.app import Application, run
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
 from automotive.sim.lfsr import FramePattern
-from automotive.wire import shm
 from automotive.wire.camera import (
     FrameWriter,
     frame_size,
     frame_type,
+    max_frame_length,
     tune_process_for_large_frames,
 )
+from automotive.wire.sharedflow import FlowWriter
+from automotive.wire.shm import SampleNotSent
 
 # The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
 PROPERTY_KEYS = PropertyKeys.of("config.ddsId", "config.pubInterval", "config.imageSize", "config.waitSubscribers",
@@ -48,16 +50,16 @@ class SubscriberCount:
                 self.current = status.current_count
                 self.changed.notify_all()
 
-    def wait_for(self, app: Application, minimum: int, others: Callable[[], int] = lambda: 0) -> bool:
-        """Wait until ``minimum`` readers (DDS readers plus ``others()``) matched or the application is stopped;
-        True if they did."""
+    def wait_for(self, app: Application, minimum: int) -> bool:
+        """Wait until ``minimum`` readers matched (on DDS: a shared-memory subscriber has its DDS reader too) or the
+        application is stopped; True if they did."""
         if minimum <= 0:
             return True
         app.log.info("waiting for %d subscriber(s)", minimum)
         with self.changed:
-            while app.running and self.current + others() < minimum:
-                self.changed.wait(0.2)  # bounded, so that a stop signal (or a shared-memory subscriber) is noticed
-            return self.current + others() >= minimum
+            while app.running and self.current < minimum:
+                self.changed.wait(0.2)  # bounded, so that a stop signal is noticed
+            return self.current >= minimum
 
 
 def body(app: Application) -> None:
@@ -67,30 +69,27 @@ def body(app: Application) -> None:
     wait_subscribers = app.props.get_int("config.waitSubscribers", 1, minimum=0)
     size = frame_size(data_type)
 
-    memory = shm.open_for(app.props, app.name, app.domain_id, app.topic_name("Camera", "CameraImageData"), app.log)
-
     subscribers = SubscriberCount()
+    flow = FlowWriter(app, "Camera", data_type, "CameraImageData", max_frame_length(data_type), subscribers.hook)
     # The pattern stream is generated once; each frame is a window of it, written without a copy.
-    writer = FrameWriter(app.writer("Camera", data_type, "CameraImageData", hook=subscribers.hook), FramePattern(size))
-    shared: shm.SharedFrameWriter | None = None
-    if memory is not None:
-        writer_qos = app.profiles.writer_qos(app.library, app.profile("Camera"))
-        shared = shm.SharedFrameWriter(memory, writer, writer_qos, lambda: subscribers.current, lambda: app.running)
+    writer = FrameWriter(flow.writer, FramePattern(size))
+
+    def write(id: int, seqnum: int) -> int:
+        return flow.publish(writer.serialized_length, lambda view: writer.build_pattern_frame(view, id, seqnum),
+                            lambda: writer.write_pattern(id, seqnum))
+
     tune_process_for_large_frames()
     app.ready()
     app.log.info("camera %d: %s frames of %d bytes, %s%s", camera_id, data_type.__name__, size,
                  f"one every {interval_ms:g} ms" if interval_ms else "as fast as flow control allows",
-                 ", through shared memory (and DDS while a DDS reader is matched)" if shared else "")
+                 "; shared memory with subscribers on this host, DDS with the others" if flow.shared else "")
     try:
-        if subscribers.wait_for(app, wait_subscribers, shared.count_subscribers if shared else lambda: 0):
-            publish(app, writer, shared.write_pattern if shared else writer.write_pattern, camera_id,
-                    interval_ms / 1000)
+        if subscribers.wait_for(app, wait_subscribers):
+            publish(app, writer, write, camera_id, interval_ms / 1000)
     finally:
-        if shared is not None:
-            app.log.info("shared memory: %d frames sent, %d written on DDS", shared.sent_shared, shared.sent_dds)
-            shared.close()
-        if memory is not None:
-            memory.close()
+        if flow.shared is not None:
+            app.log.info("shared memory: %d frames sent, %d written on DDS", flow.sent_shared, flow.sent_dds)
+        flow.close()
 
 
 def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], int], camera_id: int,
@@ -99,16 +98,14 @@ def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], i
     written = 0
     every_second, window_frames = Every(), 0
     app.status_figure = lambda: f"{written} frames of {size} bytes published"
-    topic = app.topic_name("Camera", "CameraImageData")
     for seqnum in app.periodic(interval_s):
         try:
             write(camera_id, seqnum)
-        except (DDSException, shm.FrameNotSent) as error:  # a reliable write blocked past max_blocking_time, or a stop
+        except (DDSException, SampleNotSent) as error:  # a reliable write blocked past max_blocking_time, or a stop
             app.log.warning("frame %d not written: %s", seqnum, error)
             continue
         written += 1
         window_frames += 1
-        console.traffic.count_out(topic)  # frames bypass the checked writer: counted here
         elapsed = every_second.due()
         if elapsed is not None:
             rate = window_frames / elapsed

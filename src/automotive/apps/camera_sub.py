@@ -6,8 +6,8 @@ latency min/avg/max, MB/s, mismatches, gaps), the totals on exit, and with --plo
 Latency is the receive time minus the frame's sec_/nanosec_ stamp, both on this host's clock (publisher and
 subscriber on one host, or hosts with synchronised clocks). Each image is compared with the LFSR pattern that the
 publisher sent for its seqnum (automotive.sim.lfsr); a jump in seqnum counts the frames missing in between as gaps.
-With config.transport=shm the frames come through shared memory from a publisher on this host (automotive.wire.shm),
-viewed in place and read-only; no DDS reader is created, so the publisher does not write them on DDS for us.
+Frames of a publisher on this host come through shared memory (automotive.wire.shm), viewed in place and read-only,
+and the publisher writes none on DDS for us; those of any other publisher come on DDS (config.transport=udp: all).
 """
 
 from __future__ import annotations
@@ -31,14 +31,17 @@ from automotive.bus.latency import LatencyHistogram
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every, Stats
 from automotive.sim.lfsr import FramePattern
-from automotive.wire import shm
 from automotive.wire.camera import (
     Frame,
+    FrameCodec,
     FrameReader,
+    TakenFrames,
     frame_size,
     frame_type,
+    shared_frames,
     tune_process_for_large_frames,
 )
+from automotive.wire.sharedflow import FlowReader
 
 # The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
 PROPERTY_KEYS = PropertyKeys.of("config.imageSize", "config.transport", "config.shmPrefix", roles=["Camera"])
@@ -238,14 +241,6 @@ def body(app: Application) -> None:
     size = frame_size(data_type)
     plot_path: Path | None = app.args.plot
     exit_with_publisher: bool = app.args.exit_with_publisher
-    memory = shm.open_for(app.props, app.name, app.domain_id, app.topic_name("Camera", "CameraImageData"), app.log)
-    if memory is not None:
-        try:
-            view_shared_memory(app, memory, data_type, plot_path, exit_with_publisher)
-        finally:
-            memory.close()
-        return
-
     publisher_left = GuardCondition(app.bus.participant)
     writers_seen = 0
 
@@ -256,38 +251,43 @@ def body(app: Application) -> None:
             if status.current_count == 0 and writers_seen and exit_with_publisher:
                 publisher_left.set(True)
 
-    frames = FrameReader(app.reader("Camera", data_type, "CameraImageData", hook=on_event))
-    stats = CameraStats(size, keep_samples=plot_path is not None)
-    waitset = app.waitset(frames.reader)
-    waitset.attach(publisher_left)
-    tune_process_for_large_frames()
-    app.log.info("viewing %s frames of %d bytes%s", data_type.__name__, size,
-                 ", until the publisher leaves" if exit_with_publisher else "")
-    show(app, frames, dds_wake_ups(app, waitset, publisher_left), FramePattern(size), stats, plot_path, data_type)
-
-
-def view_shared_memory(app: Application, memory: shm.SharedMemory, data_type: type[Any], plot_path: Path | None,
-                       exit_with_publisher: bool) -> None:
-    shared = shm.SharedFrameReader(memory, data_type, app.profiles.reader_qos(app.library, app.profile("Camera")))
+    flow = FlowReader.of_role(app, "Camera", data_type, "CameraImageData", hook=on_event)
     try:
+        frames = FrameReader(flow.reader, dropped=flow.from_shared)
+        stats = CameraStats(size, keep_samples=plot_path is not None)
+        waitset = flow.waitset()
+        waitset.attach(publisher_left)
         tune_process_for_large_frames()
-        size = frame_size(data_type)
-        app.log.info("viewing %s frames of %d bytes through shared memory (keeping the last %d)%s", data_type.__name__,
-                     size, shared.depth, ", until the publisher leaves" if exit_with_publisher else "")
-        app.ready()
-        wake_ups = (left and exit_with_publisher for left in shared.wake_ups(lambda: app.running))
-        show(app, shared, wake_ups, FramePattern(size), CameraStats(size, keep_samples=plot_path is not None),
-             plot_path, data_type)
+        app.log.info("viewing %s frames of %d bytes%s%s", data_type.__name__, size,
+                     f" (shared memory with publishers on this host, keeping the last {flow.depth}; DDS with the "
+                     "others)" if flow.shared else "", ", until the publisher leaves" if exit_with_publisher else "")
+        sources: list[FrameSource] = [SharedFrames(flow, frames.codec), frames]
+        show(app, sources, dds_wake_ups(app, waitset, publisher_left, flow), FramePattern(size), stats, plot_path,
+             data_type)
     finally:
-        shared.close()
+        flow.close()
 
 
-def show(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups: Iterator[bool],
-         pattern: FramePattern, stats: CameraStats, plot_path: Path | None, data_type: type[Any]) -> None:
+class SharedFrames:
+    """The frames that come through shared memory, taken as a FrameReader's are."""
+
+    def __init__(self, flow: FlowReader, codec: FrameCodec):
+        self.flow = flow
+        self.codec = codec
+
+    def take(self, limit: int) -> TakenFrames:
+        return shared_frames(self.flow.take_shared(limit), self.codec)
+
+
+FrameSource = FrameReader | SharedFrames
+
+
+def show(app: Application, sources: list[FrameSource], wake_ups: Iterator[bool], pattern: FramePattern,
+         stats: CameraStats, plot_path: Path | None, data_type: type[Any]) -> None:
     """Verify frames until stopped, then print the totals and write the plot."""
     app.status_figure = lambda: (f"{stats.total.samples} frames, latency p50 {stats.percentile_ms(0.5) or 0:.1f} ms, "
                                  f"{stats.total.gaps} gap(s), {stats.total.mismatches} mismatch(es)")
-    view(app, frames, wake_ups, pattern, stats)
+    view(app, sources, wake_ups, pattern, stats)
     size = stats.size
     stats.report_window(app.log, force=True, stats=app.stats)
     app.stats.record("totals", **stats.totals())
@@ -297,37 +297,42 @@ def show(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups
         app.log.info("latency plot written to %s", plot_path)
 
 
-def dds_wake_ups(app: Application, waitset: WaitSet, publisher_left: GuardCondition) -> Iterator[bool]:
+def dds_wake_ups(app: Application, waitset: WaitSet, publisher_left: GuardCondition,
+                 flow: FlowReader) -> Iterator[bool]:
     """After each wake-up: True once every matched publisher has left."""
     for _ in app.wake_ups(waitset):
+        flow.check_deadline()
         yield publisher_left.read()  # read before taking: every frame it sent is then already here
 
 
-def view(app: Application, frames: FrameReader | shm.SharedFrameReader, wake_ups: Iterator[bool],
-         pattern: FramePattern, stats: CameraStats) -> None:
-    mismatch = None
-    if isinstance(frames, FrameReader):
-        reader = frames
-
-        def mismatch(frame: Frame, wrong: int) -> None:
-            # Another writer's frames may all differ: one line per interval, the per-second lines count them all.
-            reader.report(BadSample("data", f"frame {frame.seqnum} of camera {frame.id}: {wrong} of {stats.size} "
-                                    "bytes differ", "the publisher's LFSR pattern for the frame's seqnum"),
-                          frame.writer, action="counted as a mismatch")
+def view(app: Application, sources: list[FrameSource], wake_ups: Iterator[bool], pattern: FramePattern,
+         stats: CameraStats) -> None:
+    def mismatch(frame: Frame, wrong: int) -> None:
+        # Another writer's frames may all differ: one line per interval, the per-second lines count them all.
+        problem = BadSample("data", f"frame {frame.seqnum} of camera {frame.id}: {wrong} of {stats.size} bytes differ",
+                            "the publisher's LFSR pattern for the frame's seqnum")
+        dds = [source for source in sources if isinstance(source, FrameReader)]
+        if frame.writer and dds:
+            dds[0].report(problem, frame.writer, action="counted as a mismatch")
+        else:  # from shared memory: a publisher of ours on this host
+            app.log.warning("frame %d of camera %d: %d of %d bytes differ from the pattern", frame.seqnum, frame.id,
+                            wrong, stats.size)
 
     topic = app.topic_name("Camera", "CameraImageData")
     for leaving in wake_ups:
-        while app.running:  # take until the reader is empty
-            with frames.take(TAKE_LIMIT) as batch:  # the frames' data are views, valid inside this block
-                if not batch:
-                    break
-                receive_ns = time.time_ns()
-                console.traffic.count_in(topic, len(batch))  # frames bypass the checked reader: counted here
-                for frame in batch:
-                    stats.received(frame, receive_ns, app.log, pattern, mismatch)
-                    app.tick()
-                    if not app.running:
+        for source in sources:
+            while app.running:  # take until the source is empty
+                with source.take(TAKE_LIMIT) as batch:  # the frames' data are views, valid inside this block
+                    if not batch:
                         break
+                    receive_ns = time.time_ns()
+                    if isinstance(source, FrameReader):  # frames bypass the checked reader: counted here
+                        console.traffic.count_in(topic, len(batch))
+                    for frame in batch:
+                        stats.received(frame, receive_ns, app.log, pattern, mismatch)
+                        app.tick()
+                        if not app.running:
+                            break
         stats.report_window(app.log, stats=app.stats)
         if leaving:
             app.log.info("the publisher left")

@@ -3,6 +3,9 @@
 Data flow:  ShapeType on Circle (Shapes Demo, keyed by color)  -->  scene (automotive.wire.pointcloud)
             scene  -->  sensor_msgs::msg::dds_::PointCloud2_ on rt/LidarTopic, every config.pubInterval ms
 
+Readers on this host (sensor fusion, the LiDAR view, the recorder, the Foxglove bridge) get each cloud through shared
+memory (automotive.wire.shm), every other reader (RViz2, RTI, Fast DDS, another host) on DDS: the same bytes.
+
 Each circle is a sphere of its Shapes Demo colour; YELLOW moves the observer instead. A circle whose instance is
 disposed, or whose writers are all gone, disappears. The scan grid comes from config.azimStart, config.azimRange,
 config.azimSteps, config.polarStart, config.polarRange and config.polarSteps (degrees; ROS 2 layout: x, y, z, rgb
@@ -28,11 +31,13 @@ from automotive.sim.scene import LidarScene, ScanGrid
 from automotive.types.automotive import ShapeType
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.wire.pointcloud import FRAME_ID
+from automotive.wire.sharedflow import FlowWriter
 
 # The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
 PROPERTY_KEYS = PropertyKeys.of("config.azimStart", "config.azimRange", "config.azimSteps", "config.polarStart",
                                "config.polarRange", "config.polarSteps", "config.pubInterval", "config.noise",
-                               "config.logEvery", "config.frameId", roles=["Lidar", "Shapes"])
+                               "config.logEvery", "config.frameId", "config.transport", "config.shmPrefix",
+                               roles=["Lidar", "Shapes"])
 
 # Each circle costs a ray-casting step per frame: a writer inventing colours must not make frames slower without end
 # (Shapes Demo has eight colours). A circle beyond this many is reported and left out until one leaves.
@@ -119,23 +124,35 @@ def body(app: Application) -> None:
     log_every = app.props.get_int("config.logEvery", 20, minimum=0)
     frame_id = app.props.get_str("config.frameId", FRAME_ID)
     scene = LidarScene(grid, noise_m=noise_m)
-    writer = app.writer("Lidar", PointCloud2_, "rt/LidarTopic")
+    # frame_id is the one field of unbounded length; 1 KiB holds the rest of a cloud beside its points
+    flow = FlowWriter(app, "Lidar", PointCloud2_, "rt/LidarTopic", grid.sample_bytes + 1024 + len(frame_id.encode()))
     circles = app.reader("Shapes", ShapeType, "Circle", optional=True)  # spheres only while Shapes Demo runs
     tracker = ShapeTracker(scene, app, circles if isinstance(circles, CheckedReader) else None)
     app.log.info("lidar: %d azimuth x %d polar steps, %d points, %d bytes a cloud, every %g ms",
                  grid.width, grid.height, grid.point_count, grid.sample_bytes, interval_ms)
 
-    render_s = write_s = 0.0
-    frames = 0  # since the last log line
     app.status_figure = lambda: (f"{grid.point_count} points, {len(scene.spheres)} sphere(s)"
                                  + (f" {','.join(sphere.color for sphere in scene.spheres)}" if scene.spheres else ""))
+    try:
+        scan(app, flow, scene, tracker, circles, frame_id, interval_ms, log_every)
+    finally:
+        if flow.shared is not None:
+            app.log.info("shared memory: %d clouds sent, %d written on DDS", flow.sent_shared, flow.sent_dds)
+        flow.close()
+
+
+def scan(app: Application, flow: FlowWriter, scene: LidarScene, tracker: ShapeTracker, circles: DataReader[ShapeType],
+         frame_id: str, interval_ms: float, log_every: int) -> None:
+    grid = scene.grid
+    render_s = write_s = 0.0
+    frames = 0  # since the last log line
     for frame in app.periodic(interval_ms / 1000):
         tracker.apply(take_all(circles))
         sec, nanosec = now_seconds_nanoseconds()
         start = time.perf_counter()
         cloud = scene.point_cloud2(sec, nanosec, frame_id)
         rendered = time.perf_counter()
-        writer.write(cloud)
+        flow.publish_sample(cloud)
         written = time.perf_counter()
         render_s += rendered - start
         write_s += written - rendered

@@ -4,6 +4,9 @@ Data flow:  Vision::VisionSensor on VisionTopic (all sensors)  --\\
                                                                  +-->  Sensor::SensorObjectList on SensorObjects
             PointCloud2_ on rt/LidarTopic (timestamps logged)  --/
 
+The LiDAR's clouds come through shared memory from a LiDAR on this host (automotive.wire.shm), on DDS from any other;
+with --stats each cloud's hop (receive time minus the writer's source timestamp) is a ``lidar`` record.
+
 config.mode=periodic (the original) publishes every config.pubInterval ms the objects of the vision samples received
 since the last list (taken once a list, not woken by each sample); config.mode=event publishes as soon as vision data
 arrives, for low latency.
@@ -35,9 +38,12 @@ from automotive.cyclone.codecs import codec_for
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE, SensorObjectList
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.types.Vision import VisionSensor
+from automotive.wire.pointcloud import read_cloud
+from automotive.wire.sharedflow import FlowReader
 
 # The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
-PROPERTY_KEYS = PropertyKeys.of("config.mode", "config.pubInterval", roles=["Vision", "Lidar", "SensorObjects"])
+PROPERTY_KEYS = PropertyKeys.of("config.mode", "config.pubInterval", "config.transport", "config.shmPrefix",
+                                roles=["Vision", "Lidar", "SensorObjects"])
 
 SENSOR_OBJECT = codec_for(SensorObjectList).element_dtype("objects")  # type: ignore[union-attr]
 # What a vision object gives a sensor object; the rest is zero: amplitude 0, rangeMode RANGE_NONE, rangeRate 0.
@@ -66,12 +72,31 @@ def fuse(samples: list[VisionSensor]) -> np.ndarray[Any, Any]:
     return objects
 
 
-def log_lidar_stamps(app: Application, lidar: DataReader[PointCloud2_]) -> None:
-    for cloud in lidar.take(N=64):
-        if isinstance(cloud, PointCloud2_):
+def take_lidar(app: Application, lidar: FlowReader) -> None:
+    """Take the LiDAR's clouds (through shared memory from this host, on DDS from another): their stamps logged and,
+    with --stats, each one's hop from the writer (receive time minus source timestamp)."""
+    while True:
+        with lidar.take_shared() as shared:
+            if not shared:
+                break
+            received = time.time_ns()
+            for sample in shared:
+                cloud, _ = read_cloud(sample.data)  # its header and layout, read in place
+                stamp = cloud.header_.stamp_
+                lidar_taken(app, stamp.sec_, stamp.nanosec_, cloud.width_ * cloud.height_, sample.source_timestamp,
+                            received)
+    for cloud in lidar.reader.take(N=64):
+        info = cloud.sample_info
+        if isinstance(cloud, PointCloud2_) and not lidar.from_shared(info.publication_handle):
             stamp = cloud.header_.stamp_
-            app.log.debug("lidar sample stamped %d.%09d: %d points", stamp.sec_, stamp.nanosec_,
-                         cloud.width_ * cloud.height_)
+            lidar_taken(app, stamp.sec_, stamp.nanosec_, cloud.width_ * cloud.height_, info.source_timestamp,
+                        time.time_ns())
+    lidar.check_deadline()
+
+
+def lidar_taken(app: Application, sec: int, nanosec: int, points: int, source_ns: int, received_ns: int) -> None:
+    app.log.debug("lidar sample stamped %d.%09d: %d points", sec, nanosec, points)
+    app.stats.record("lidar", src=source_ns, at=received_ns, hop_ns=received_ns - source_ns)
 
 
 def body(app: Application) -> None:
@@ -80,8 +105,16 @@ def body(app: Application) -> None:
     vision = app.reader("Vision", VisionSensor, "VisionTopic")
     if isinstance(vision, CheckedReader):
         vision.use_views()
+    lidar = FlowReader.of_role(app, "Lidar", PointCloud2_, "rt/LidarTopic")
+    try:
+        fuse_until_stopped(app, mode, interval_s, vision, lidar)
+    finally:
+        lidar.close()
+
+
+def fuse_until_stopped(app: Application, mode: str, interval_s: float, vision: DataReader[VisionSensor],
+                       lidar: FlowReader) -> None:
     vision_topic = vision.topic.get_name()
-    lidar = app.reader("Lidar", PointCloud2_, "rt/LidarTopic")
     writer = app.writer("SensorObjects", SensorObjectList, "SensorObjects")
     stall_guard = StallGuard(writer, app.log)  # redundant mode: no fusing of samples missed while stalled
     app.log.info("sensor fusion: %s mode, every %.0f ms", mode, interval_s * 1000)
@@ -98,11 +131,11 @@ def body(app: Application) -> None:
     if mode == "periodic":
         # Woken by the LiDAR (its stamps are logged) and by the clock, not by each vision sample: the vision data is
         # taken once a list (the reader keeps 100 samples a sensor), whatever the number of sensors.
-        wake_ups = app.wake_ups(app.waitset(lidar), timeout_s=until_publish)
+        wake_ups = app.wake_ups(lidar.waitset(), timeout_s=until_publish)
     else:
-        wake_ups = app.wake_ups(app.waitset(vision, lidar), timeout_s=1.0)
+        wake_ups = app.wake_ups(lidar.waitset(vision), timeout_s=1.0)
     for _ in wake_ups:
-        log_lidar_stamps(app, lidar)
+        take_lidar(app, lidar)
         if mode == "periodic" and time.monotonic() < next_publish:
             continue
         fresh = stall_guard.fresh([s for s in vision.take(N=1000) if isinstance(s, VisionSensor)],

@@ -106,8 +106,8 @@ def run_ours(size_name: str, duration: float, domain: int, env: dict[str, str], 
     common = ["--domain", str(domain), "-D", f"config.imageSize={size_name}"]
     if qos_file is not None:
         common += ["-D", f"qos.File={qos_file.resolve()}"]
-    if shared_memory:
-        common += ["-D", "config.transport=shm", "-D", f"config.shmPrefix={SHM_PREFIX}"]
+    # "ours" is the pair over UDP: shared memory is the default on one host, so it is turned off by name
+    common += ["-D", f"config.transport={'shm' if shared_memory else 'udp'}", "-D", f"config.shmPrefix={SHM_PREFIX}"]
     handle, name = tempfile.mkstemp(prefix="camera_sub-", suffix=".jsonl", dir=workdir)
     os.close(handle)  # camera_sub writes it: only its name is needed here
     figures = Path(name)

@@ -216,8 +216,10 @@ class Application:
             return profile + REDUNDANT_SUFFIX
         return profile
 
-    def writer(self, role: str, data_type: type[T], default_topic: str, hook: EventHook | None = None) -> DataWriter[T]:
-        """A writer of the topic ``topic.<role>`` with the QoS profile ``qos.<role>.Profile`` (or ``qos.Profile``).
+    def writer(self, role: str, data_type: type[T], default_topic: str, hook: EventHook | None = None,
+               overrides: tuple[Any, ...] = ()) -> DataWriter[T]:
+        """A writer of the topic ``topic.<role>`` with the QoS profile ``qos.<role>.Profile`` (or ``qos.Profile``);
+        ``overrides`` replace the profile's policies (a shared-memory writer's USER_DATA).
 
         A writer with exclusive ownership gets its strength from ``config.ownershipStrength``.
         """
@@ -226,16 +228,17 @@ class Application:
         if self.profiles.exclusive_writer(self.library, profile):
             strength = self.props.get_int("config.ownershipStrength", DEFAULT_OWNERSHIP_STRENGTH, minimum=0,
                                           maximum=2**31 - 1)
-        return self.bus.writer(self.topic_name(role, default_topic), data_type, profile, hook, strength)
+        return self.bus.writer(self.topic_name(role, default_topic), data_type, profile, hook, strength, overrides)
 
     def reader(self, role: str, data_type: type[T], default_topic: str, hook: EventHook | None = None,
-               optional: bool = False) -> DataReader[T]:
+               optional: bool = False, overrides: tuple[Any, ...] = ()) -> DataReader[T]:
         """A reader of ``topic.<role>`` with the profile ``qos.<role>.Profile``, filtered when the topic has a
-        content filter; ``optional``: an input the application does without (no warning while nobody writes it)."""
+        content filter; ``optional``: an input the application does without (no warning while nobody writes it);
+        ``overrides`` replace the profile's policies (a shared-memory reader's USER_DATA)."""
         topic = self.topic_name(role, default_topic)
         if optional:
             self.optional_topics.add(topic)
-        return self.bus.reader(topic, data_type, self.profile(role), hook,
+        return self.bus.reader(topic, data_type, self.profile(role), hook, overrides,
                                content_filter=self.filters.predicate(topic, data_type))
 
     # -- run loop ----------------------------------------------------------------------------------------------

@@ -88,6 +88,13 @@ def _check(writer: DataWriter[Any], result: int | None, doing: str) -> None:
         raise DDSException(result, f"Occurred while {doing} a serialized sample in {writer!r}")
 
 
+def serialize(writer: DataWriter[Any], sample: Any) -> bytes:
+    """``sample`` serialized as ``writer.write`` would send it (its data representation, padded to 4-byte units): the
+    bytes a writer sends through shared memory and on DDS alike."""
+    data: bytes = sample.serialize(use_version_2=getattr(writer, "_use_version_2", None))
+    return data.ljust((len(data) + 3) & ~3, b"\0")
+
+
 def write(writer: DataWriter[Any], data: Buffer, timestamp: int | None = None) -> None:
     """Write a serialized sample (CDR with its header, a whole number of 4-byte units)."""
     if gate.enabled():

@@ -42,6 +42,7 @@ from automotive.types.CameraImage import (
     CameraImageData_64KiB,
 )
 from automotive.wire.rawsample import RawReader, RawWriter, SampleKind
+from automotive.wire.shm import LentShared
 
 # config.imageSize values: the IDL's frame (1366 x 768 x 4 bytes) and the sized variants for trying other sizes.
 FRAME_TYPES: dict[str, type[Any]] = {
@@ -113,6 +114,11 @@ def frame_type(value: str, where: str = "config.imageSize") -> type[Any]:
             return data_type
     choices = ", ".join(f"{name} ({frame_size(data_type)} bytes)" for name, data_type in FRAME_TYPES.items())
     raise ConfigError(f"{where} = '{value}' is not a known frame size (expected one of: {choices})")
+
+
+def max_frame_length(data_type: type[Any]) -> int:
+    """The longest serialized frame of a type: XCDR2's header (encapsulation, DHEADER, fields), the image, padding."""
+    return 4 + 4 + _HEADER_FIELDS + frame_size(data_type) + 3
 
 
 @dataclass
@@ -303,11 +309,13 @@ class FrameReader:
     """Takes frames from a DataReader of a frame type, without deserializing the image (and, where Cyclone's C
     library lends the received bytes, without copying them)."""
 
-    def __init__(self, reader: DataReader[Any], zero_copy: bool = True):
+    def __init__(self, reader: DataReader[Any], zero_copy: bool = True,
+                 dropped: Callable[[int], bool] = lambda writer: False):
         self.reader = reader
         self.codec = FrameCodec(reader.topic.data_type)
         self._raw = RawReader(reader, zero_copy)
         self._writer_names = WriterNames(reader)
+        self.dropped = dropped  # writers whose frames come another way (shared memory): theirs are left out here
 
     @property
     def zero_copy(self) -> bool:
@@ -319,7 +327,7 @@ class FrameReader:
         frames: list[Frame] = []
         try:
             for sample in lent.samples:
-                if sample.kind is not SampleKind.DATA:
+                if sample.kind is not SampleKind.DATA or self.dropped(sample.writer):
                     continue
                 try:
                     frame = self.codec.decode(sample.data)
@@ -347,3 +355,18 @@ class FrameReader:
         """Report a bad frame of ``writer`` (rate-limited, automotive.bus.badsamples)."""
         reporter = getattr(self.reader, "reporter", None) or badsamples.reporter()
         reporter.report(self.reader.topic.get_name(), problem, self._writer_names.describe(writer), action)
+
+
+def shared_frames(lent: LentShared, codec: FrameCodec) -> TakenFrames:
+    """The frames of samples lent by shared memory (automotive.wire.shm), valid as long as ``lent``: decoded in place,
+    the image a read-only view of the publisher's memory."""
+    frames: list[Frame] = []
+    try:
+        for sample in lent.samples:
+            frames.append(codec.decode(sample.data))
+    except BaseException:
+        for frame in frames:
+            frame.data.release()
+        lent.close()
+        raise
+    return TakenFrames(frames, lent.close)

@@ -33,9 +33,9 @@ class FilteredRawReader(RawReader):
         self.bad = 0  # samples of data that did not decode or failed their checks
         self._seen = SeenInstances()
 
-    def _samples(self, data: Buffer, info: Any, whole_key_sample: bool = False) -> list[RawSample]:
+    def samples_of(self, data: Buffer, info: Any, whole_key_sample: bool = False) -> list[RawSample]:
         kept = []
-        for sample in super()._samples(data, info, whole_key_sample):
+        for sample in super().samples_of(data, info, whole_key_sample):
             if sample.kind is SampleKind.DATA:
                 decoded = self._decoded(sample)
                 passed = decoded is not None and self._matches(sample, decoded)

@@ -7,6 +7,7 @@ RViz2 reads; points are laid out row by row.
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Sequence
 from typing import Any
 
@@ -79,6 +80,93 @@ def to_point_cloud2(points: npt.NDArray[Any], stamp_sec: int, stamp_nanosec: int
         data_=points.tobytes(),  # type: ignore[arg-type]  # one block; the serializer's fast path takes bytes
         is_dense_=True,
     )
+
+
+# The encapsulations read in place, with their byte order: XCDR1 (what our writers send, automotive.bus.qos) and
+# XCDR2's D_CDR2, where each appendable struct (the cloud, its header, the stamp) and the sequence of fields (structs)
+# begin with a DHEADER, their length, skipped here. A cloud of any other encapsulation is deserialized whole.
+_XCDR1 = {0x0000: ">", 0x0001: "<"}
+_D_CDR2 = {0x0008: ">", 0x0009: "<"}
+_MAX_FIELDS = 4  # PointCloud2_.fields_ is a sequence<PointField_, 4>
+
+
+class _Cursor:
+    """The members of a serialized sample one after the other, each aligned as CDR aligns it: from the end of the
+    4-byte encapsulation header, to its own size (XCDR2 aligns to 4 at most: the same for these members)."""
+
+    def __init__(self, data: memoryview, order: str):
+        self.data = data
+        self.order = order
+        self.at = 4
+
+    def _unpack(self, code: str, size: int) -> int:
+        self.at += -(self.at - 4) % size
+        if self.at + size > len(self.data):
+            raise ValueError(f"{len(self.data)} bytes, ending inside the member at byte {self.at}")
+        (value,) = struct.unpack_from(self.order + code, self.data, self.at)
+        self.at += size
+        return int(value)
+
+    def uint32(self) -> int:
+        return self._unpack("I", 4)
+
+    def int32(self) -> int:
+        return self._unpack("i", 4)
+
+    def uint8(self) -> int:
+        return self._unpack("B", 1)
+
+    def skip(self, size: int) -> None:
+        if self.at + size > len(self.data):
+            raise ValueError(f"{len(self.data)} bytes, too few for the {size} bytes at byte {self.at}")
+        self.at += size
+
+    def string(self) -> str:
+        length = self.uint32()  # with its terminating NUL
+        start = self.at
+        if length == 0:
+            raise ValueError(f"a string of length 0 at byte {start} (at least its NUL expected)")
+        self.skip(length)
+        return bytes(self.data[start:start + length - 1]).decode("utf-8")  # UnicodeDecodeError is a ValueError
+
+
+def read_cloud(serialized: memoryview) -> tuple[PointCloud2_, slice | None]:
+    """The header and layout of a serialized PointCloud2 (CDR, its encapsulation header first), read in place: a
+    PointCloud2_ whose ``data_`` is empty, and where its data lie in ``serialized``. A cloud of an encapsulation not
+    read in place is deserialized whole: the cloud with its data, and None. Raises ValueError for bytes that are not
+    a PointCloud2."""
+    if len(serialized) < 4:
+        raise ValueError(f"{len(serialized)} bytes, too few for an encapsulation header")
+    encapsulation = (serialized[0] << 8) | serialized[1]
+    order = _XCDR1.get(encapsulation) or _D_CDR2.get(encapsulation)
+    if order is None:
+        try:
+            return PointCloud2_.deserialize(bytes(serialized)), None
+        except Exception as error:  # whatever the deserializer raises for bytes it cannot decode
+            raise ValueError(f"encapsulation 0x{encapsulation:04x}: {error}") from None
+    cursor = _Cursor(serialized, order)
+    dheaders = 1 if encapsulation in _D_CDR2 else 0
+    for _ in range(3 * dheaders):  # the cloud's, its header's, its stamp's
+        cursor.uint32()
+    stamp = Time_(sec_=cursor.int32(), nanosec_=cursor.uint32())
+    header = Header_(stamp_=stamp, frame_id_=cursor.string())
+    height, width = cursor.uint32(), cursor.uint32()
+    for _ in range(dheaders):  # the sequence of fields'
+        cursor.uint32()
+    count = cursor.uint32()
+    if count > _MAX_FIELDS:
+        raise ValueError(f"{count} fields (a PointCloud2 has at most {_MAX_FIELDS})")
+    # keyword arguments are evaluated in order: the members as they are serialized
+    fields = [PointField_(name_=cursor.string(), offset_=cursor.uint32(), datatype_=cursor.uint8(),
+                          count_=cursor.uint32()) for _ in range(count)]
+    is_bigendian = bool(cursor.uint8())
+    point_step, row_step = cursor.uint32(), cursor.uint32()
+    length = cursor.uint32()
+    start = cursor.at
+    cursor.skip(length)
+    cloud = PointCloud2_(header_=header, height_=height, width_=width, fields_=fields, is_bigendian_=is_bigendian,
+                         point_step_=point_step, row_step_=row_step, data_=[], is_dense_=bool(cursor.uint8()))
+    return cloud, slice(start, start + length)
 
 
 def _field(fields: dict[str, Any], names: Sequence[str]) -> Any:

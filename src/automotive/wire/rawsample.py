@@ -136,7 +136,7 @@ class RawReader:
     def zero_copy(self) -> bool:
         return self._lender is not None
 
-    def _samples(self, data: Buffer, info: Any, whole_key_sample: bool = False) -> list[RawSample]:
+    def samples_of(self, data: Buffer, info: Any, whole_key_sample: bool = False) -> list[RawSample]:
         """The sample(s) one taken sample stands for.
 
         A disposal or unregistration that arrives while its instance still holds unread data produces no sample of
@@ -165,7 +165,7 @@ class RawReader:
         """Take up to ``limit`` samples, each with its own copy of the bytes."""
         samples = []
         for taken in serdata.take(self.reader, limit):
-            samples.extend(self._samples(taken.data, taken.info, taken.whole_key_sample))
+            samples.extend(self.samples_of(taken.data, taken.info, taken.whole_key_sample))
         return samples
 
     def drain(self, limit: int = 64) -> Iterator[tuple[RawSample, int]]:
@@ -215,9 +215,9 @@ class RawReader:
             if buffer.array is not None:
                 arrays.append(buffer.array)
                 views.append(memoryview(buffer.array).cast("B"))
-                samples.extend(self._samples(views[-1], buffer.info))
+                samples.extend(self.samples_of(views[-1], buffer.info))
             else:  # a disposal or unregistration: Cyclone lends no key
-                samples.extend(self._samples(b"", buffer.info))
+                samples.extend(self.samples_of(b"", buffer.info))
         buffers.clear()
 
 

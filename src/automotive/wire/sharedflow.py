@@ -1,0 +1,235 @@
+"""One large flow of an application (camera frames, LiDAR clouds) over shared memory and DDS at once.
+
+:class:`FlowWriter` and :class:`FlowReader` put together what :mod:`automotive.wire.shm` provides for one endpoint of
+an :class:`~automotive.bus.app.Application`: the DDS endpoint with the role's QoS profile (marked with the locality's
+USER_DATA when shared memory is used), the iceoryx2 port, which of the matched peers shared memory serves, the
+deadline of the samples that come through it, and the console's traffic counts. The applications and tools write
+and read serialized samples (CDR, as DDS carries them) through them and never ask which way a sample goes.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+from cyclonedds.core import GuardCondition, WaitSet
+from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Qos
+from cyclonedds.sub import DataReader
+
+from automotive.bus import console
+from automotive.bus.app import Application
+from automotive.bus.status import EventHook
+from automotive.cyclone import serdata
+from automotive.wire import shm
+from automotive.wire.rawsample import RawWriter
+
+T = TypeVar("T")
+
+
+def _listener_report(endpoint: DataWriter[Any] | DataReader[Any], event: str) -> Callable[[Any], None]:
+    """A deadline status reported through the endpoint's own status listener, as Cyclone reports one."""
+    def report(status: Any) -> None:
+        listener = endpoint.get_listener()
+        handler = getattr(listener, f"on_{event}", None)
+        if handler is not None:
+            handler(endpoint, status)
+    return report
+
+
+class FlowWriter:
+    """The writer of a large flow: shared memory to this host's subscribers, DDS to every other reader.
+
+    ``max_length`` bounds a serialized sample (the publisher's slots are that big). Shared memory that cannot be used
+    (``config.transport=udp``, no room in /dev/shm, iceoryx2 refusing) leaves a plain DDS writer.
+    """
+
+    def __init__(self, app: Application, role: str, data_type: type[T], default_topic: str, max_length: int,
+                 hook: EventHook | None = None):
+        self.app = app
+        self.topic = app.topic_name(role, default_topic)
+        qos = app.profiles.writer_qos(app.library, app.profile(role))
+        self.memory = shm.open_for(app.props, app.name, app.domain_id, self.topic, app.log)
+        self.shared: shm.SharedWriter | None = None
+        if self.memory is not None:
+            try:
+                self.shared = shm.SharedWriter(self.memory, max_length, qos, lambda: app.running)
+            except shm.Unavailable as error:
+                self.memory.close()
+                self.memory = None
+                shm.unavailable(app.props, self.topic, str(error), app.log)
+        self.dds_readers = shm.DdsReaders(self.memory.key if self.memory is not None else None)
+
+        def on_event(event: str, topic: str, status: Any) -> None:
+            self.dds_readers.hook(event, topic, status)
+            if hook is not None:
+                hook(event, topic, status)
+
+        overrides = (self.memory.user_data,) if self.memory is not None else ()
+        self.writer: DataWriter[Any] = app.writer(role, data_type, default_topic, on_event, overrides)
+        self.dds_readers.writer = self.writer
+        self.raw = RawWriter(self.writer)
+        # The offered deadline of samples that go through shared memory only (DDS watches those it writes).
+        self.deadline = shm.DeadlineWatch(shm.deadline_s(qos), _listener_report(self.writer, "offered_deadline_missed"))
+        self.sent_shared = 0  # samples sent through shared memory
+        self.sent_dds = 0  # samples written on DDS
+        # The last sample written on DDS by publish_sample, while its instance is registered there: once no reader
+        # outside shared memory is left, the instance is unregistered, or the DDS readers of this host (which drop
+        # its samples) would see their deadline missed while its samples come on through shared memory.
+        self._registered: bytes | None = None
+
+    @property
+    def subscribers(self) -> int:
+        """Readers of the flow: DDS readers matched, plus shared-memory subscribers of readers without DDS."""
+        return len(self.writer.get_matched_subscriptions())
+
+    def publish(self, length: int, fill: Callable[[memoryview], int], write_dds: Callable[[], int]) -> int:
+        """Publish one sample: ``fill(view)`` writes its ``length`` serialized bytes into shared memory and returns
+        its source timestamp (ns); ``write_dds()`` writes it on DDS when no subscriber is on shared memory and
+        returns its timestamp. Return the timestamp (now when nobody reads the flow)."""
+        dds_readers = self.dds_readers.count()
+        if not dds_readers:
+            self._unregister()
+        shared = self.shared
+        if shared is not None and shared.subscribers:
+            def fill_and_write(view: memoryview) -> int:
+                stamp = fill(view)
+                if dds_readers:
+                    self.raw.write(view, stamp)
+                    self.sent_dds += 1
+                return stamp
+
+            stamp = shared.publish(length, fill_and_write)
+            self.sent_shared += 1
+        elif dds_readers:
+            stamp = write_dds()
+            self.sent_dds += 1
+        else:
+            stamp = time.time_ns()
+        console.traffic.count_out(self.topic)  # samples bypass the checked writer: counted here
+        if not dds_readers:
+            self.deadline.check()
+        self.deadline.sample(None)
+        return stamp
+
+    def _unregister(self) -> None:
+        if self._registered is not None:
+            self.raw.unregister(self._registered)
+            self._registered = None
+
+    def has_readers(self) -> bool:
+        """Whether anyone reads the flow now (in shared memory or on DDS): without, a sample need not be serialized."""
+        return bool((self.shared is not None and self.shared.subscribers) or self.dds_readers.count())
+
+    def publish_sample(self, sample: Any) -> int:
+        """Publish a sample object: serialized once, the same bytes in shared memory and on DDS, and not at all
+        while nobody reads the flow; return its source timestamp (ns)."""
+        if not self.has_readers():
+            self._unregister()
+            console.traffic.count_out(self.topic)
+            return time.time_ns()
+        data = serdata.serialize(self.writer, sample)
+        stamp = time.time_ns()  # as DDS stamps a write: once the sample is serialized
+
+        def fill(view: memoryview) -> int:
+            view[:] = data
+            return stamp
+
+        def write_dds() -> int:
+            self.raw.write(data, stamp)
+            return stamp
+
+        written = self.sent_dds
+        self.publish(len(data), fill, write_dds)
+        if self.sent_dds > written:
+            self._registered = data
+        return stamp
+
+    def close(self) -> None:
+        if self.shared is not None:
+            self.shared.close()
+            self.shared = None
+        if self.memory is not None:
+            self.memory.close()
+            self.memory = None
+
+
+class FlowReader:
+    """The reader of a large flow: a DDS reader (marked when shared memory is used) and a shared-memory subscriber,
+    woken by one WaitSet. DDS samples of writers on this host's shared memory are dropped (:meth:`from_shared`):
+    they came through shared memory."""
+
+    def __init__(self, app: Application, topic: str, reader_qos: Qos,
+                 make_reader: Callable[[tuple[Any, ...]], DataReader[Any]]):
+        """The flow of ``topic``, whose DDS reader (with ``reader_qos``) ``make_reader(overrides)`` creates with the
+        given policies in place of its profile's (the locality's USER_DATA). :meth:`of_role` serves applications."""
+        self.app = app
+        self.topic = topic
+        self.memory = shm.open_for(app.props, app.name, app.domain_id, topic, app.log)
+        self.shared: shm.SharedReader | None = None
+        if self.memory is not None:
+            try:
+                self.shared = shm.SharedReader(self.memory, reader_qos)
+            except shm.Unavailable as error:
+                self.memory.close()
+                self.memory = None
+                shm.unavailable(app.props, topic, str(error), app.log)
+        self.reader = make_reader((self.memory.user_data,) if self.memory is not None else ())
+        self.local = shm.LocalWriters(self.reader, self.memory.key if self.memory is not None else None)
+        self.guard = GuardCondition(app.bus.participant)
+        self.deadline = shm.DeadlineWatch(shm.deadline_s(reader_qos),
+                                          _listener_report(self.reader, "requested_deadline_missed"))
+        if self.shared is not None:
+            self.shared.wake(self.guard)
+
+    @classmethod
+    def of_role(cls, app: Application, role: str, data_type: type[T], default_topic: str,
+                hook: EventHook | None = None, optional: bool = False) -> FlowReader:
+        """The flow an application reads as ``role`` (its topic and QoS profile from its properties)."""
+        return cls(app, app.topic_name(role, default_topic), app.profiles.reader_qos(app.library, app.profile(role)),
+                   lambda overrides: app.reader(role, data_type, default_topic, hook, optional, overrides))
+
+    @property
+    def depth(self) -> int | None:
+        return self.shared.depth if self.shared is not None else None
+
+    def waitset(self, *others: DataReader[Any]) -> WaitSet:
+        """The application's WaitSet for this flow's DDS reader, its shared memory, and ``others``."""
+        waitset = self.app.waitset(self.reader, *others)
+        waitset.attach(self.guard)
+        return waitset
+
+    def from_shared(self, writer_handle: int) -> bool:
+        """A DDS sample of this writer came through shared memory too: drop it."""
+        return self.local.is_local(writer_handle)
+
+    def take_shared(self, limit: int = 16) -> shm.LentShared:
+        """Samples from shared memory (none without it), valid inside ``with flow.take_shared() as samples:``."""
+        self.guard.take()
+        if self.shared is None:
+            return shm.LentShared([], lambda: None)
+        lent = self.shared.take(limit)
+        if lent.samples:
+            self.deadline.sample(None)
+            console.traffic.count_in(self.topic, len(lent.samples))  # bypass the checked reader: counted here
+        return lent
+
+    def check_deadline(self) -> None:
+        """Report a missed deadline of the shared-memory samples (call after each wake-up)."""
+        # No writer left (it stopped, or DDS found it dead when its lease ended): no instance is expected any more,
+        # as DDS stops watching an instance without writers.
+        if self.deadline.watching and (not self.memory_publishers() or not self.reader.get_matched_publications()):
+            self.deadline.forget()
+        self.deadline.check()
+
+    def memory_publishers(self) -> int:
+        return self.memory.publishers if self.memory is not None else 0
+
+    def close(self) -> None:
+        if self.shared is not None:
+            self.shared.close()
+            self.shared = None
+        if self.memory is not None:
+            self.memory.close()
+            self.memory = None
