@@ -5,21 +5,32 @@ running view (``python -m automotive.tools.lidar_view``) with a running LiDAR: i
 laptop's size (xwininfo for the geometry and the caption, screenshots for the pixels) and its --snapshot PNG, whose
 title, legend and axes must be pixel for pixel those of the in-process figure. And no window without a display:
 ``--ui window`` is refused in one line before the view joins the bus, ``--ui auto`` logs the clouds and says why.
+
+Where the clouds come from (issue 32): a LiDAR on the view's host sends them through shared memory (iceoryx2) and
+writes none on DDS for the view, which reads each one in place (:func:`read_cloud`); with ``config.transport=udp``
+the view gets them on DDS. Bad bytes in shared memory are reported like bad DDS samples. Every test that runs a
+LiDAR or the view names its iceoryx2 files with a prefix of its own (the ``prefix`` fixture), so that it meets
+no other process on this machine in shared memory and leaves nothing in /dev/shm.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import itertools
 import os
 import re
 import shutil
+import signal
 import subprocess
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import numpy.typing as npt
 import pytest
-from apprunner import command_of
+from apprunner import Child, command_of
+from cyclonedds.idl._support import Endianness
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
@@ -31,18 +42,41 @@ from matplotlib.artist import Artist
 from matplotlib.colors import to_rgb
 from matplotlib.lines import Line2D
 from PIL import Image, ImageGrab
+from test_shm import files_of
 
 from automotive.bus.endpoints import Databus
 from automotive.sim.scene import BACKGROUND_RGB, GROUND_RGB, SHAPE_RGB, LidarScene, ScanGrid
 from automotive.tools.cloudview import DEFAULT_SIZE, CloudFigure
-from automotive.tools.lidar_view import WINDOW_TITLE, CloudRate, fit_to_screen, status_line
+from automotive.tools.lidar_view import WINDOW_TITLE, CloudRate, cloud_points, fit_to_screen, status_line
 from automotive.types.automotive import ShapeType
-from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
-from automotive.wire.pointcloud import decode_point_cloud2
+from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_, PointField_
+from automotive.wire.pointcloud import FLOAT32, decode_point_cloud2, read_cloud
+from automotive.wire.shm import SharedMemory, SharedWriter
 
 RED, MAGENTA = SHAPE_RGB["RED"], SHAPE_RGB["MAGENTA"]
 TITLE = f"{WINDOW_TITLE}: rt/LidarTopic"  # what the view shows as its title and window caption
 Box = tuple[int, int, int, int]  # left, top, right, bottom pixels
+TIMEOUT = 60.0  # starting Python, Cyclone and iceoryx2 on a loaded 2-core machine can take a while
+CLOUD_LINE = r"lidar_view: cloud (\d+): cloud stamped (\d+\.\d{9}), frame 'map': 11520 points \(64 x 180\)$"
+SHARED_COUNTS = re.compile(r"shared memory: (\d+) clouds sent, (\d+) written on DDS")
+
+
+_prefixes = itertools.count(1)
+
+
+@pytest.fixture
+def prefix() -> Iterator[str]:
+    """A file-name prefix for this test's iceoryx2 files only (as test_shm's fixture); whatever remains of them is
+    removed afterwards. Name it first among a test's fixtures: its clean-up then runs after the apps stopped."""
+    name = f"lidarview{os.getpid()}x{next(_prefixes)}_"
+    yield name
+    for path in files_of(name, include_global=True):
+        path.unlink(missing_ok=True)
+
+
+def private(prefix: str) -> list[str]:
+    """The arguments that give a LiDAR or the view this test's iceoryx2 files (``config.shmPrefix``)."""
+    return ["-D", f"config.shmPrefix={prefix}"]
 
 
 def scene_cloud(frame: int, **circles: tuple[float, float, int]) -> tuple[npt.NDArray[np.float32],
@@ -159,6 +193,65 @@ def test_pictures_below_the_minimum_size_are_refused() -> None:
         CloudFigure((200, 100))
 
 
+# -- a serialized cloud, read in place -------------------------------------------------------------------------------
+
+def odd_cloud(xyz: npt.NDArray[np.float32], rgb: npt.NDArray[np.uint8]) -> PointCloud2_:
+    """A cloud of these points (64 x 180) in another publisher's layout: fields in another order, 20-byte points,
+    rows padded, big-endian data."""
+    height, width, step, row_step = 64, 180, 20, 180 * 20 + 8
+    rows = np.zeros((height, row_step), dtype=np.uint8)
+    points = rows[:, :width * step].reshape(height, width, step)
+    packed = (rgb[:, 0].astype(np.uint32) << 16) | (rgb[:, 1].astype(np.uint32) << 8) | rgb[:, 2]
+    points[:, :, 0:4] = packed.astype(">u4").reshape(height, width, 1).view(np.uint8)
+    for axis in range(3):
+        points[:, :, 8 + 4 * axis:12 + 4 * axis] = xyz[:, axis].astype(">f4").reshape(height, width, 1).view(np.uint8)
+    cloud = LidarScene(ScanGrid()).point_cloud2(1_700_000_000, 5, "velodyne_top")
+    fields = [PointField_(name_="rgb", offset_=0, datatype_=FLOAT32, count_=1),
+              *(PointField_(name_=name, offset_=8 + 4 * axis, datatype_=FLOAT32, count_=1)
+                for axis, name in enumerate("xyz"))]
+    return dataclasses.replace(cloud, fields_=fields, is_bigendian_=True, point_step_=step, row_step_=row_step,
+                               data_=rows.tobytes(), is_dense_=False)
+
+
+@pytest.mark.parametrize("endianness", [Endianness.Little, Endianness.Big], ids=["little", "big"])
+@pytest.mark.parametrize("version_2", [False, True], ids=["xcdr1", "xcdr2"])
+def test_a_serialized_cloud_is_read_in_place_as_the_deserializer_reads_it(version_2: bool,
+                                                                         endianness: Endianness) -> None:
+    """XCDR1 (what our LiDAR sends) and XCDR2, either byte order: the header and layout that read_cloud reads from
+    the bytes are those of the deserialized cloud, and its points those decode_point_cloud2 gives."""
+    points = scene_cloud(3, RED=(3, 1, 60))
+    for cloud in (LidarScene(ScanGrid(), seed=2).point_cloud2(1_700_000_000, 7, "map"), odd_cloud(*points)):
+        serialized = memoryview(cloud.serialize(use_version_2=version_2, endianness=endianness)).toreadonly()
+        read, data = read_cloud(serialized)
+        assert data is not None  # read in place, not deserialized
+        assert read.data_ == []
+        assert dataclasses.replace(read, data_=bytes(serialized[data])) == dataclasses.replace(
+            PointCloud2_.deserialize(bytes(serialized)), data_=bytes(cloud.data_))
+        xyz, rgb = cloud_points(read, data, serialized)
+        expected_xyz, expected_rgb = decode_point_cloud2(cloud)
+        assert np.array_equal(xyz, expected_xyz) and np.array_equal(rgb, expected_rgb)
+        serialized.release()  # nothing kept a view of it (raises BufferError otherwise)
+    assert np.array_equal(xyz, points[0]) and np.array_equal(rgb, points[1])  # the odd layout's points, as sent
+
+
+def test_bytes_that_are_not_a_point_cloud_are_one_value_error() -> None:
+    good = LidarScene(ScanGrid(azimuth_steps=8, polar_steps=4)).point_cloud2(1_700_000_000, 0).serialize(
+        use_version_2=False)
+    five_fields = bytearray(good)
+    five_fields[28] = 5  # the count of fields: after the encapsulation, stamp, frame_id "map", height and width
+    assert good[28:32] == b"\x04\x00\x00\x00"
+    cases = [
+        (good[:2], r"^2 bytes, too few for an encapsulation header$"),
+        (good[:100], r"^100 bytes, ending inside the member at byte \d+$"),
+        (good[:-200], rf"^{len(good) - 200} bytes, too few for the 512 bytes at byte \d+$"),
+        (bytes(five_fields), r"^5 fields \(a PointCloud2 has at most 4\)$"),
+        (b"\x00\x42\x00\x00" + good[4:], r"^encapsulation 0x0042: "),
+    ]
+    for data, message in cases:
+        with pytest.raises(ValueError, match=message):
+            read_cloud(memoryview(data))
+
+
 # -- the running view ------------------------------------------------------------------------------------------------
 
 @pytest.fixture(params=[(1280, 720), (800, 600)], ids=lambda size: f"{size[0]}x{size[1]}")
@@ -202,13 +295,15 @@ def window_captions(display: str) -> list[str]:
     return re.findall(r'^\s*0x[0-9a-f]+ "([^"]*LiDAR[^"]*)"', tree, re.MULTILINE)
 
 
-def test_window_fits_the_screen_and_keeps_its_title(apps, domain_id: int, bus: Databus,  # type: ignore[no-untyped-def]
-                                                    screen: tuple[str, tuple[int, int]], tmp_path: Path) -> None:
+def test_window_fits_the_screen_and_keeps_its_title(prefix: str, apps, domain_id: int,  # type: ignore[no-untyped-def]
+                                                    bus: Databus, screen: tuple[str, tuple[int, int]],
+                                                    tmp_path: Path) -> None:
     display, (screen_width, screen_height) = screen
     writer = bus.writer("Circle", ShapeType, "Shapes")
-    apps.start("lidar", "--domain", str(domain_id))
+    apps.start("lidar", "--domain", str(domain_id), *private(prefix))
     # The shipped picture size (1600x800) is too big for either screen: the window shrinks to fit.
-    view = apps.start("lidar_view", "--ui", "window", "--domain", str(domain_id), env={"DISPLAY": display})
+    view = apps.start("lidar_view", "--ui", "window", "--domain", str(domain_id), *private(prefix),
+                      env={"DISPLAY": display})
     found = view.wait_for(r"lidar view: window on rt/LidarTopic \((\d+)x(\d+)\)")
     wait_until(lambda: window_geometry(display) is not None, what="the view's window")
     geometry = window_geometry(display)
@@ -262,10 +357,10 @@ def test_window_fits_the_screen_and_keeps_its_title(apps, domain_id: int, bus: D
     assert window_geometry(display) == geometry
 
 
-def test_snapshot_shows_the_sphere_with_title_legend_and_axes(apps, domain_id: int,  # type: ignore[no-untyped-def]
-                                                             bus: Databus, tmp_path: Path) -> None:
+def test_snapshot_shows_the_sphere_with_title_legend_and_axes(prefix: str, apps,  # type: ignore[no-untyped-def]
+                                                             domain_id: int, bus: Databus, tmp_path: Path) -> None:
     writer = bus.writer("Circle", ShapeType, "Shapes")
-    lidar = apps.start("lidar", "--domain", str(domain_id))
+    lidar = apps.start("lidar", "--domain", str(domain_id), *private(prefix))
     magenta = ShapeType("MAGENTA", *circle(3, 1), 90)  # radius 1.5 m
 
     def magenta_taken() -> bool:
@@ -275,8 +370,9 @@ def test_snapshot_shows_the_sphere_with_title_legend_and_axes(apps, domain_id: i
     wait_until(magenta_taken, timeout=30, what="the LiDAR to take the magenta circle")
     picture = tmp_path / "cloud.png"
     # Every cloud the viewer can receive now was rendered after the LiDAR had the shape.
-    result = apps.run("lidar_view", "--domain", str(domain_id), "--snapshot", str(picture), "--count", "2",
-                      "--timeout", "30", "-D", "config.imageWidth=800", "-D", "config.imageHeight=400", timeout=60)
+    result = apps.run("lidar_view", "--domain", str(domain_id), *private(prefix), "--snapshot", str(picture),
+                      "--count", "2", "--timeout", "30", "-D", "config.imageWidth=800", "-D", "config.imageHeight=400",
+                      timeout=60)
     assert result.returncode == 0, result.stdout + result.stderr
     assert re.search(rf"snapshot of cloud 2 written to {re.escape(str(picture))} \(800x400\): cloud stamped "
                      r"\d+\.\d{9}, frame 'map': 11520 points \(64 x 180\)", result.stdout), result.stdout
@@ -293,6 +389,94 @@ def test_snapshot_shows_the_sphere_with_title_legend_and_axes(apps, domain_id: i
     expected = figure.render(xyz, rgb, "cloud 2")
     chrome = chrome_mask(figure, figure.status_box())
     assert np.array_equal(pixels[chrome], expected[chrome])  # title, legend, axes and their labels
+
+
+# -- shared memory on one host, DDS with --------------------------------------------------------------------------
+
+def cloud_lines(view: Child) -> list[tuple[int, str]]:
+    """(number, stamp) of each cloud the view logged."""
+    return [(int(match[1]), match[2]) for _, match in view.matches(CLOUD_LINE)]
+
+
+def test_a_lidar_on_this_host_reaches_the_view_through_shared_memory_only(prefix: str, apps,  # type: ignore[no-untyped-def]
+                                                                          domain_id: int) -> None:
+    """The shipped transport (auto), LiDAR and view on one host: every cloud through shared memory and none written
+    on DDS (the view's DDS reader carries this host's mark), each a new one; a clean stop leaves no file of ours."""
+    lidar = apps.start("lidar", "--domain", str(domain_id), *private(prefix))
+    view = apps.start("lidar_view", "--ui", "none", "--domain", str(domain_id), *private(prefix),
+                      "-D", "config.logEvery=1")
+    view.wait_for(CLOUD_LINE, count=5, timeout=TIMEOUT)
+    assert lidar.stop(signal.SIGTERM) == 0, lidar.output
+    sent = SHARED_COUNTS.search(lidar.output)
+    assert sent is not None and int(sent[1]) >= 5 and sent[2] == "0", lidar.output
+    assert view.stop(signal.SIGINT) == 0, view.output
+    clouds = cloud_lines(view)
+    assert [number for number, _ in clouds] == list(range(1, len(clouds) + 1)), view.output
+    stamps = [float(stamp) for _, stamp in clouds]
+    assert stamps == sorted(set(stamps)), view.output  # a new cloud each time, in order
+    assert "Traceback" not in view.output and "bad sample" not in view.output, view.output
+    assert files_of(prefix) == set()
+
+
+def test_with_transport_udp_the_view_gets_the_clouds_on_dds(prefix: str, apps,  # type: ignore[no-untyped-def]
+                                                           domain_id: int) -> None:
+    """``-D config.transport=udp`` on the view: it has no shared memory, so the LiDAR (shared memory by default)
+    writes the clouds on DDS for it, and the view shows them."""
+    lidar = apps.start("lidar", "--domain", str(domain_id), *private(prefix))
+    view = apps.start("lidar_view", "--ui", "none", "--domain", str(domain_id), *private(prefix),
+                      "-D", "config.transport=udp", "-D", "config.logEvery=1")
+    view.wait_for(CLOUD_LINE, count=5, timeout=TIMEOUT)
+    assert lidar.stop(signal.SIGINT) == 0, lidar.output
+    sent = SHARED_COUNTS.search(lidar.output)
+    assert sent is not None and sent[1] == "0" and int(sent[2]) >= 5, lidar.output
+    assert view.stop() == 0, view.output
+    assert "Traceback" not in view.output and "bad sample" not in view.output, view.output
+
+
+def test_bad_clouds_in_shared_memory_are_reported_and_the_snapshot_shows_the_next(  # type: ignore[no-untyped-def]
+        prefix: str, apps, domain_id: int, tmp_path: Path) -> None:
+    """A writer on this host (the test, through iceoryx2 as our LiDAR writes) sends bytes that are no PointCloud2
+    (reported in one line, not counted), a cloud without rgb (counted, reported, not drawn: the snapshot takes the
+    next cloud) and a good one: its snapshot is written, and nothing of a shared cloud outlived its block (the view
+    would stop with "still in use")."""
+    picture = tmp_path / "cloud.png"
+    view = apps.start("lidar_view", "--domain", str(domain_id), *private(prefix), "--snapshot", str(picture),
+                      "--timeout", str(TIMEOUT), "-D", "config.imageWidth=800", "-D", "config.imageHeight=400")
+    scene = LidarScene(ScanGrid())
+    scene.update_shape("MAGENTA", *circle(3, 1), 90)
+    good = scene.point_cloud2(1_700_000_000, 2).serialize(use_version_2=False)
+    no_rgb = dataclasses.replace(scene.point_cloud2(1_700_000_000, 1), fields_=scene.point_cloud2(0, 0).fields_[:3])
+    memory = SharedMemory("test", domain_id, "rt/LidarTopic", prefix)
+    writer = SharedWriter(memory, len(good), Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(1)),
+                          lambda: True)
+
+    def send(data: bytes) -> None:
+        def fill(target: memoryview) -> int:
+            target[:] = data
+            return time.time_ns()
+        writer.publish(len(data), fill)
+
+    try:
+        wait_until(lambda: memory.subscribers == 1, timeout=TIMEOUT, what="the view's shared-memory subscriber")
+        send(good[:100])
+        view.wait_for(r"\[rt/LidarTopic\] bad sample ignored: 100 bytes, ending inside the member at byte \d+ "
+                      r"\(expected a serialized PointCloud2\), from a writer on this host \(shared memory\)",
+                      timeout=TIMEOUT)
+        send(no_rgb.serialize(use_version_2=False))
+        view.wait_for(r"\[rt/LidarTopic\] bad sample not shown: fields_ = PointCloud2: missing field\(s\) rgb .*"
+                      r"from a writer on this host \(shared memory\)", timeout=TIMEOUT)
+        send(good)
+        assert view.wait_exit(timeout=TIMEOUT) == 0, view.output
+    finally:
+        writer.close()
+        memory.close()
+    assert re.search(rf"snapshot of cloud 2 written to {re.escape(str(picture))} \(800x400\): cloud stamped "
+                     r"1700000000\.000000002, frame 'map': 11520 points \(64 x 180\)", view.output), view.output
+    assert "Traceback" not in view.output, view.output
+    with Image.open(picture) as image:
+        pixels = np.asarray(image.convert("RGB"))
+    for panel in CloudFigure((800, 400), title=TITLE).panels.values():
+        assert count(pixels, panel, MAGENTA) > 50
 
 
 # -- no window without a display -------------------------------------------------------------------------------------
@@ -333,10 +517,10 @@ def test_window_on_sdl_offscreen_driver_is_refused_even_with_a_display(domain_id
 
 @pytest.mark.parametrize("display, reason", [("", re.escape(NO_DISPLAY)), ("free", UNREACHABLE)],
                          ids=["unset", "unreachable"])
-def test_auto_without_a_display_logs_the_clouds_and_says_why(apps, domain_id: int,  # type: ignore[no-untyped-def]
-                                                            display: str, reason: str) -> None:
-    apps.start("lidar", "--domain", str(domain_id))
-    view = apps.start("lidar_view", "--domain", str(domain_id),
+def test_auto_without_a_display_logs_the_clouds_and_says_why(prefix: str, apps,  # type: ignore[no-untyped-def]
+                                                            domain_id: int, display: str, reason: str) -> None:
+    apps.start("lidar", "--domain", str(domain_id), *private(prefix))
+    view = apps.start("lidar_view", "--domain", str(domain_id), *private(prefix),
                       env={"DISPLAY": free_x_display() if display == "free" else "", "WAYLAND_DISPLAY": ""})
     view.wait_for(rf"lidar_view: lidar view: log lines only on rt/LidarTopic \(no window: {reason}; --snapshot FILE "
                   r"writes a picture without a display\)$")

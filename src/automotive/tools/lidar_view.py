@@ -12,20 +12,27 @@ the bus. ``--ui none`` logs a line per config.logEvery clouds and the status lin
 window where a display can show one, and else those log lines, which is what the view can still do without a
 display: it says why in one line, and that ``--snapshot FILE`` gives a picture without one.
 
+The clouds of a LiDAR on this host come through shared memory (automotive.wire.sharedflow, iceoryx2), those of any
+other on DDS (``config.transport=udp``: all on DDS). A shared cloud is read in place: its header and layout from the
+serialized bytes (:func:`read_cloud`), its points straight into the picture's arrays, and only the newest of those
+waiting when the view wakes up is drawn (every one is counted for the log lines and the rate).
+
 The picture (automotive.tools.cloudview) has axes in metres, a legend of the LiDAR's colours (Shapes Demo circles
 are spheres in their own colour; grey: the background sphere; dark grey: the ground) and a title that stays put;
 the cloud number, point count, rate and stamp are in a status box. The window keeps the title as its caption and is
 made smaller (same proportions) when config.imageWidth x config.imageHeight would not fit the screen.
 
 Any PointCloud2 with x, y, z and rgb (or rgba) fields is shown, whatever its layout (offsets, point_step, padded rows,
-byte order), so clouds of other publishers show too. The reader's QoS profile (qos.Lidar.Profile, LidarView by
-default) is best effort with no deadline and a generous latency budget, so it matches our LiDAR's writer and the
-default writers of other DDS and ROS 2 publishers alike.
+byte order), so clouds of other publishers show too; one without them is reported (once per interval, as bad samples
+are) and not shown, and ``--snapshot`` takes the next cloud instead. The reader's QoS profile (qos.Lidar.Profile,
+LidarView by default) is best effort with no deadline and a generous latency budget, so it matches our LiDAR's writer
+and the default writers of other DDS and ROS 2 publishers alike.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from collections import deque
@@ -36,6 +43,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from automotive.bus import badsamples
 from automotive.bus.app import Application, build_parser, run
 from automotive.bus.badsamples import BadSample
 from automotive.bus.checkedreader import CheckedReader
@@ -45,11 +53,13 @@ from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.tools.cloudview import MIN_SIZE, CloudFigure
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
-from automotive.wire.pointcloud import decode_point_cloud2
+from automotive.wire.pointcloud import decode_point_cloud2, read_cloud
+from automotive.wire.sharedflow import FlowReader
+from automotive.wire.shm import SharedSample
 
 # The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
 PROPERTY_KEYS = PropertyKeys.of("config.imageWidth", "config.imageHeight", "config.pointRadius", "config.windowRate",
-                                "config.logEvery", roles=["Lidar"])
+                                "config.logEvery", "config.transport", "config.shmPrefix", roles=["Lidar"])
 
 NAME = "lidar_view"
 COMMAND = "automotive lidar-view"
@@ -59,6 +69,8 @@ SNAPSHOT_HINT = "--snapshot FILE writes a picture without a display"
 # takes pictures of up to 1256x640.
 SCREEN_MARGIN = (24, 80)
 RATE_WINDOW = 20  # the rate shown is over the last this many clouds received
+TAKE_LIMIT = 16  # clouds taken at once
+SHARED_WRITER = "a writer on this host (shared memory)"  # who sent a shared cloud, in a bad-sample line
 
 
 def fit_to_screen(size: tuple[int, int], screen: tuple[int, int]) -> tuple[int, int]:
@@ -144,9 +156,16 @@ def describe(cloud: PointCloud2_) -> str:
             f"{cloud.width_ * cloud.height_} points ({cloud.height_} x {cloud.width_})")
 
 
-def latest_clouds(reader: Any) -> list[PointCloud2_]:
-    return [sample for sample in reader.take(N=16) if isinstance(sample, PointCloud2_)]
+def cloud_points(cloud: PointCloud2_, data: slice | None,
+                 serialized: memoryview) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+    """x, y, z and r, g, b of a cloud that :func:`read_cloud` read, its data taken from ``serialized`` in place
+    (copied once: into these arrays). Raises ValueError for a cloud this view cannot draw."""
+    if data is None:
+        return decode_point_cloud2(cloud)
+    return decode_point_cloud2(dataclasses.replace(cloud, data_=serialized[data]))
 
+
+# -- the clouds of each wake-up --------------------------------------------------------------------------------------
 
 class CloudRate:
     """Clouds received a second, over the last RATE_WINDOW clouds.
@@ -159,8 +178,12 @@ class CloudRate:
 
     def received(self, cloud: PointCloud2_) -> None:
         info = getattr(cloud, "sample_info", None)
-        if info is not None:
-            self.stamps_ns.append(info.source_timestamp)
+        self.stamped(info.source_timestamp if info is not None else None)
+
+    def stamped(self, source_ns: int | None) -> None:
+        """A cloud with this source timestamp (ns; None: not known) was received."""
+        if source_ns is not None:
+            self.stamps_ns.append(source_ns)
 
     def per_second(self) -> float | None:
         if len(self.stamps_ns) < 2 or self.stamps_ns[-1] <= self.stamps_ns[0]:
@@ -174,6 +197,136 @@ def status_line(number: int, cloud: PointCloud2_, rate: float | None) -> str:
     per_second = f"{rate:5.1f}" if rate is not None else "    -"
     return (f"cloud {number:<7d} {cloud.width_ * cloud.height_:>6d} points  {per_second} clouds/s  "
             f"stamp {stamp.sec_}.{stamp.nanosec_:09d}  frame '{cloud.header_.frame_id_}'")
+
+
+@dataclass(frozen=True)
+class Picture:
+    """A cloud to draw: its number (clouds received so far), its header and layout, and its points."""
+
+    number: int
+    cloud: PointCloud2_
+    xyz: npt.NDArray[np.float32]
+    rgb: npt.NDArray[np.uint8]
+
+
+class CloudIntake:
+    """Takes the clouds of a wake-up, through shared memory and on DDS: counts each one (log lines, rate, --count)
+    and gives the one to draw, decoded: the ``wanted``-th for a snapshot, else the newest when a picture is due.
+
+    A shared cloud is read in place inside its ``with`` block and nothing of it outlives the block but copies (its
+    header and layout, its points): the publisher reuses the memory once the block gives it back."""
+
+    def __init__(self, app: Application, flow: FlowReader, log_every: int, wanted: int):
+        self.app = app
+        self.flow = flow
+        self.log_every = log_every
+        self.wanted = wanted  # the cloud a snapshot shows; 0: no snapshot
+        self.received = 0
+        self.rate = CloudRate()
+
+    def take(self, draw: bool) -> tuple[int, Picture | None]:
+        """(the clouds taken, the picture to draw or None); ``draw``: a picture is due (else none is decoded)."""
+        taken = 0
+        picture: Picture | None = None
+        while self.app.running:  # every cloud waiting in shared memory, the newest drawn
+            with self.flow.take_shared(TAKE_LIMIT) as samples:
+                if not samples:
+                    break
+                taken += len(samples)
+                picture = self._shared(samples, draw) or picture
+            if picture is not None and self.wanted:
+                return taken, picture
+        clouds = [cloud for cloud in self.flow.reader.take(N=TAKE_LIMIT) if isinstance(cloud, PointCloud2_)
+                  and not self.flow.from_shared(cloud.sample_info.publication_handle)]  # those came in shared memory
+        taken += len(clouds)
+        return taken, self._dds(clouds, draw) or picture
+
+    def _count(self, source_ns: int | None) -> int:
+        self.received += 1
+        self.rate.stamped(source_ns)
+        if not self.wanted:
+            self.app.tick()
+        return self.received
+
+    def _is_wanted(self, number: int, draw: bool, last: bool) -> bool:
+        return number == self.wanted if self.wanted else draw and last
+
+    def _log(self, number: int, cloud: PointCloud2_) -> None:
+        if self._logged(number):
+            self.app.log.info("cloud %d: %s", number, describe(cloud))
+
+    def _logged(self, number: int) -> bool:
+        return bool(self.log_every) and (number == 1 or number % self.log_every == 0)
+
+    def _shared(self, samples: list[SharedSample], draw: bool) -> Picture | None:
+        picture = None
+        for index, sample in enumerate(samples):
+            try:
+                cloud, data = read_cloud(sample.data)  # its header and layout: a few members, read in place
+            except ValueError as error:
+                self._report_shared(BadSample("", str(error), "a serialized PointCloud2"), "ignored")
+                continue
+            number = self._count(sample.source_timestamp)
+            self._log(number, cloud)
+            if not self._is_wanted(number, draw, index == len(samples) - 1):
+                continue
+            try:
+                picture = Picture(number, cloud, *cloud_points(cloud, data, sample.data))
+            except ValueError as error:
+                self._report_shared(cannot_draw(error), "not shown")
+                self._not_drawn()
+                continue
+            if self.wanted:
+                break
+        return picture
+
+    def _dds(self, clouds: list[PointCloud2_], draw: bool) -> Picture | None:
+        picture = None
+        for index, cloud in enumerate(clouds):
+            number = self._count(cloud.sample_info.source_timestamp)
+            self._log(number, cloud)
+            if not self._is_wanted(number, draw, index == len(clouds) - 1):
+                continue
+            try:
+                picture = Picture(number, cloud, *decode_point_cloud2(cloud))
+            except ValueError as error:  # a valid cloud this view cannot draw (no rgb...): said once per interval
+                reader = self.flow.reader
+                if isinstance(reader, CheckedReader):
+                    reader.report(cannot_draw(error), cloud.sample_info, action="not shown")
+                else:
+                    self.app.log.warning("cannot show a cloud: %s", error)
+                self._not_drawn()
+                continue
+            if self.wanted:
+                break
+        return picture
+
+    def _not_drawn(self) -> None:
+        """The cloud to draw could not be: a snapshot shows the next one."""
+        if self.wanted:
+            self.wanted += 1
+
+    def _report_shared(self, problem: BadSample, action: str) -> None:
+        """A bad cloud from shared memory (a writer on this host), reported as the DDS reader reports its own."""
+        reporter = getattr(self.flow.reader, "reporter", None) or badsamples.reporter()
+        reporter.report(self.flow.topic, problem, SHARED_WRITER, action)
+
+
+def cannot_draw(error: ValueError) -> BadSample:
+    return BadSample("fields_", str(error), "x, y, z and rgb fields this view can draw")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What the view's properties and command line ask for."""
+
+    size: tuple[int, int]
+    point_radius: int
+    max_rate: float
+    log_every: int
+    snapshot: Path | None
+    timeout_s: float
+    wanted: int  # the cloud a snapshot shows; 0: no snapshot
 
 
 def body(app: Application, display: Display) -> None:
@@ -192,72 +345,58 @@ def body(app: Application, display: Display) -> None:
     wanted = max(app.count, 1) if snapshot is not None else 0
     if snapshot is not None:
         app.count = 0
-    size = (width, height)
+    settings = Settings((width, height), point_radius, max_rate, log_every, snapshot, timeout_s, wanted)
+    flow = FlowReader.of_role(app, "Lidar", PointCloud2_, "rt/LidarTopic")
+    try:
+        view(app, display, flow, settings)
+    finally:
+        flow.close()
 
-    reader = app.reader("Lidar", PointCloud2_, "rt/LidarTopic")
-    title = f"{WINDOW_TITLE}: {reader.topic.name}"
+
+def view(app: Application, display: Display, flow: FlowReader, settings: Settings) -> None:
+    """Take the clouds of ``flow`` and draw them (window), write one (snapshot) or log them, until stopped."""
+    snapshot, size, topic = settings.snapshot, settings.size, flow.topic
+    title = f"{WINDOW_TITLE}: {topic}"
     window, why_no_window = make_window(app, display, size, title)
     figure: CloudFigure | None = None
     if snapshot is not None:
-        app.log.info("lidar view: waiting for cloud %d on %s for %s", wanted, reader.topic.name, snapshot)
+        app.log.info("lidar view: waiting for cloud %d on %s for %s", settings.wanted, topic, snapshot)
     elif window is not None:
-        app.log.info("lidar view: window on %s (%dx%d)", reader.topic.name, *window.size)
+        app.log.info("lidar view: window on %s (%dx%d)", topic, *window.size)
     else:
-        app.log.info("lidar view: log lines only on %s%s", reader.topic.name,
+        app.log.info("lidar view: log lines only on %s%s", topic,
                      f" (no window: {why_no_window}; {SNAPSHOT_HINT})" if why_no_window else "")
     if window is not None:
-        figure = CloudFigure(window.size, point_radius, title)
+        figure = CloudFigure(window.size, settings.point_radius, title)
         window.show(figure.render(np.empty((0, 3)), np.empty((0, 3), dtype=np.uint8),
-                                  f"waiting for a point cloud on {reader.topic.name}"))
+                                  f"waiting for a point cloud on {topic}"))
 
     started = time.monotonic()
-    received = 0
-    rate = CloudRate()
+    intake = CloudIntake(app, flow, settings.log_every, settings.wanted)
     next_view = 0.0
     try:
-        for _ in app.wake_ups(app.waitset(reader), timeout_s=0.05 if window else 0.5):
+        for _ in app.wake_ups(flow.waitset(), timeout_s=0.05 if window else 0.5):
             if window is not None:
                 window.pump()
-            clouds = latest_clouds(reader)
-            if not clouds and snapshot is not None and timeout_s and time.monotonic() - started > timeout_s:
-                raise SnapshotTimeout(f"--snapshot: no point cloud on {reader.topic.name} within {timeout_s:g} s")
-            show: PointCloud2_ | None = None
-            for cloud in clouds:
-                received += 1
-                rate.received(cloud)
-                if log_every and (received == 1 or received % log_every == 0):
-                    app.log.info("cloud %d: %s", received, describe(cloud))
-                if snapshot is not None:
-                    if received == wanted:
-                        show = cloud
-                        break
-                else:
-                    show = cloud  # the newest of this wake-up
-                    app.tick()
-            if show is None:
+            draw = snapshot is not None or (window is not None and time.monotonic() >= next_view)
+            taken, picture = intake.take(draw)
+            flow.check_deadline()
+            if (not taken and snapshot is not None and settings.timeout_s
+                    and time.monotonic() - started > settings.timeout_s):
+                raise SnapshotTimeout(f"--snapshot: no point cloud on {topic} within {settings.timeout_s:g} s")
+            if picture is None:
                 continue
-            if snapshot is None and (window is None or time.monotonic() < next_view):
-                continue
-            try:
-                xyz, rgb = decode_point_cloud2(show)
-            except ValueError as error:  # a valid cloud this view cannot draw (no rgb...): said once per interval
-                problem = BadSample("fields_", str(error), "x, y, z and rgb fields this view can draw")
-                if isinstance(reader, CheckedReader):
-                    reader.report(problem, show.sample_info, action="not shown")
-                else:
-                    app.log.warning("cannot show a cloud: %s", error)
-                continue
-            status = status_line(received, show, rate.per_second())
+            status = status_line(picture.number, picture.cloud, intake.rate.per_second())
             if snapshot is not None:
-                figure = CloudFigure(size, point_radius, title)
-                figure.save_png(figure.render(xyz, rgb, status), snapshot)
-                app.log.info("snapshot of cloud %d written to %s (%dx%d): %s", received, snapshot, width, height,
-                             describe(show))
+                figure = CloudFigure(size, settings.point_radius, title)
+                figure.save_png(figure.render(picture.xyz, picture.rgb, status), snapshot)
+                app.log.info("snapshot of cloud %d written to %s (%dx%d): %s", picture.number, snapshot, *size,
+                             describe(picture.cloud))
                 app.stop()
                 return
             assert window is not None and figure is not None
-            window.show(figure.render(xyz, rgb, status))
-            next_view = time.monotonic() + 1 / max_rate
+            window.show(figure.render(picture.xyz, picture.rgb, status))
+            next_view = time.monotonic() + 1 / settings.max_rate
     finally:
         if window is not None:
             window.close()
