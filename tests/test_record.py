@@ -220,6 +220,10 @@ def test_duration_ends_the_recording(apps, domain_id: int, tmp_path: Path) -> No
      r"^(automotive )?record: --topics: unknown topic\(s\) Nope \(known: VisionTopic, rt/LidarTopic, .*Circle, "
      r"rt/diagnostics\)"),
     (["--output", "{tmp}/x.mcap", "-D", "config.compression=brotli"], r"^(automotive )?record: .*config.compression"),
+    # checked at start even when no flow read goes through shared memory
+    (["--output", "{tmp}/x.mcap", "--topics", "AlertTopic", "-D", "config.transport=tcp"],
+     r"^(automotive )?record: .*config.transport"),
+    (["--output", "{tmp}/x.mcap", "-D", "config.shmPrefix=a/b"], r"^(automotive )?record: .*config.shmPrefix = 'a/b'"),
 ])
 def test_bad_input_is_one_line(apps, domain_id: int, tmp_path: Path, args: list[str], message: str) -> None:  # type: ignore[no-untyped-def]
     (tmp_path / "exists.mcap").write_bytes(b"keep me")
@@ -229,6 +233,7 @@ def test_bad_input_is_one_line(apps, domain_id: int, tmp_path: Path, args: list[
     assert len(result.stderr.strip().splitlines()) == 1, result.stderr
     assert re.search(message, result.stderr), result.stderr
     assert (tmp_path / "exists.mcap").read_bytes() == b"keep me"
+    assert not (tmp_path / "x.mcap").exists()  # refused before anything was written
 
 
 

@@ -33,6 +33,12 @@ function emit(line) {
   process.stdout.write(JSON.stringify(line) + "\n");
 }
 
+// The last line, then exit once every line written has reached the pipe: process.exit() drops (or cuts in the
+// middle) what a slow reader has not taken yet, and a line of a LiDAR cloud is a few hundred kB.
+function emitAndExit(line, code) {
+  process.stdout.write(JSON.stringify(line) + "\n", () => process.exit(code));
+}
+
 function sha256(bytes) {
   return crypto.createHash("sha256").update(bytes).digest("hex");
 }
@@ -198,16 +204,14 @@ function readWebSocket(url, subprotocol) {
   const WebSocket = require("ws");
   const ws = new WebSocket(url, [subprotocol ?? FoxgloveClient.SUPPORTED_SUBPROTOCOL], { maxPayload: 0 });
   ws.on("unexpected-response", (_request, response) => {
-    emit({ kind: "error", error: `HTTP ${response.statusCode} ${response.statusMessage}` });
-    process.exit(1);
+    emitAndExit({ kind: "error", error: `HTTP ${response.statusCode} ${response.statusMessage}` }, 1);
   });
   const client = new FoxgloveClient({ ws });
   const subscriptions = new Map(); // subscription id -> {topic, decode}
   client.on("open", () => emit({ kind: "open", protocol: ws.protocol }));
   client.on("error", (error) => emit({ kind: "error", error: errorText(error) }));
   client.on("close", (event) => {
-    emit({ kind: "close", code: event.code });
-    process.exit(0);
+    emitAndExit({ kind: "close", code: event.code }, 0);
   });
   client.on("advertise", (channels) => {
     for (const channel of channels) {

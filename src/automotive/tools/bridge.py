@@ -12,6 +12,15 @@ the 3D panel, every other flow in the Raw Messages and Plot panels, and every pr
 keep only the newest sample of each instance (a reliable writer is never held back by the bridge), and each client
 gets at most config.backlog messages queued (the oldest dropped first), so a slow or stuck client costs bounded
 memory. Disposals and unregistrations are not forwarded (a Foxglove channel carries samples of one type).
+
+The camera's frames and the LiDAR's clouds of writers on this host come through shared memory (automotive.wire.shm;
+config.transport=udp: on DDS), the very bytes their DDS samples carry; the DDS copies of those writers' samples are
+left out (automotive.tools.flows.FlowInput), so none is forwarded twice. Its shared-memory subscriber keeps the
+profile's depth, not only the newest sample, and the bridge forwards every sample it takes there: the camera's
+reliable keep-all writer counts each sample it sends through shared memory until the subscriber takes it, and a sample
+overwritten unread would never be counted off (measured: with a depth of 1 the camera at full speed stalled for its
+max_blocking_time, 10 s, again and again). So, unlike on DDS, a bridge that stops taking samples altogether (a frozen
+process) holds the camera back, for at most that max_blocking_time (automotive.wire.shm's flow control).
 """
 
 from __future__ import annotations
@@ -27,13 +36,20 @@ from automotive.bus.app import Application, run
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
-from automotive.tools.flows import Flow, channel_metadata, flows_with_diagnostics, select
+from automotive.tools.flows import (
+    Flow,
+    FlowInput,
+    channel_metadata,
+    check_transport,
+    flows_with_diagnostics,
+    open_inputs,
+    select,
+)
 from automotive.tools.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, SubprotocolRelay
-from automotive.wire.filteredraw import filtered_raw_reader
 from automotive.wire.rawsample import SampleKind
 
 # The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
-PROPERTY_KEYS = PropertyKeys.of("config.backlog")
+PROPERTY_KEYS = PropertyKeys.of("config.backlog", "config.transport", "config.shmPrefix")
 
 TAKE_LIMIT = 16
 
@@ -65,15 +81,23 @@ def foxglove_channel(app: Application, flow: Flow) -> foxglove.Channel:
 def body(app: Application) -> None:
     flows = select(flows_with_diagnostics(app.props.folder), app.args.topics)
     backlog = app.props.get_int("config.backlog", 16, minimum=1)
+    check_transport(app.props)
     port: int = app.args.port
     if not 0 <= port <= 65535:
         raise ConfigError(f"--port {port}: expected 0..65535")
-    listener = SubscriptionLog(app)
     # Readers first: the channels appear to clients at once, the data as soon as writers match.
-    readers = [(flow.topic, filtered_raw_reader(app.bus.reader(flow.topic, flow.data_type, flow.profile,
-                                                               overrides=(Policy.History.KeepLast(1),)),
-                                                app.filters.predicate(flow.topic, flow.data_type)),
-                foxglove_channel(app, flow)) for flow in flows]
+    inputs = open_inputs(app, flows, (Policy.History.KeepLast(1),), shared_overrides=())
+    try:
+        serve(app, inputs, backlog, port)
+    finally:
+        for flow_input in inputs:
+            flow_input.close()
+
+
+def serve(app: Application, inputs: list[FlowInput], backlog: int, port: int) -> None:
+    """Forward every flow's samples to the Foxglove clients until stopped."""
+    listener = SubscriptionLog(app)
+    readers = [(flow_input, foxglove_channel(app, flow_input.flow)) for flow_input in inputs]
     # The SDK's server on a private loopback port, behind a front on --host/--port that also accepts the older
     # subprotocol name (automotive.tools.wsrelay).
     try:
@@ -90,22 +114,29 @@ def body(app: Application) -> None:
     app.log.info("Foxglove WebSocket server on ws://%s:%d (%d topics, at most %d messages queued per client; "
                  "subprotocol %s or %s)", app.args.host, front.port, len(readers), backlog, SDK_SUBPROTOCOL,
                  LEGACY_SUBPROTOCOL)
-    forwarded = {flow.topic: 0 for flow in flows}
+    forwarded = {flow_input.flow.topic: 0 for flow_input in inputs}
     every_second = Every()
+    waitset = app.waitset(*(flow_input.reader for flow_input in inputs))
+    for flow_input in inputs:
+        flow_input.attach(waitset)
     try:
-        for _ in app.wake_ups(app.waitset(*(raw.reader for _, raw, _ in readers)), timeout_s=0.5):
-            for topic, raw, channel in readers:
-                for sample, receive_ns in raw.drain(TAKE_LIMIT):
+        for _ in app.wake_ups(waitset, timeout_s=0.5):
+            for flow_input, channel in readers:
+                for sample, receive_ns in flow_input.drain(TAKE_LIMIT):
                     if sample.kind is SampleKind.DATA:
                         channel.log(bytes(sample.data), log_time=receive_ns)
-                        forwarded[topic] += 1
+                        forwarded[flow_input.flow.topic] += 1
                         app.tick()
+                flow_input.check_deadline()
             if every_second.due():
                 app.log.info("forwarded %s; %d subscription(s)", status(forwarded), listener.subscriptions)
     finally:
         front.stop()
         server.stop()
     app.log.info("forwarded in total %s", status(forwarded))
+    for flow_input in inputs:
+        if flow_input.shared_counts():
+            app.log.info("%s: %s", flow_input.flow.topic, flow_input.shared_counts())
 
 
 def status(forwarded: dict[str, int]) -> str:

@@ -11,22 +11,35 @@ DDS topic and type names.
 The recorder and the live bridge also carry every program's health, ROS 2's /diagnostics (``rt/diagnostics``, the
 ROS 2 message ``diagnostic_msgs/msg/DiagnosticArray``: automotive.bus.diagnostics), which is no application's data
 flow: the replayer and the Zenoh site bridge leave it out.
+
+The large flows (the camera's frames, the LiDAR's clouds: ``Flow.shared``) go through shared memory to the readers on
+their writer's host (automotive.wire.sharedflow). The recorder and the live bridge read every flow through
+:class:`FlowInput`: serialized samples as received, those of a shared flow from shared memory when its writer is on
+this host (the same CDR bytes and source timestamp as its DDS samples) and on DDS from any other writer, never one
+sample twice.
 """
 
 from __future__ import annotations
 
+import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
-from cyclonedds.qos import DataWriterQos
+from cyclonedds.core import InstanceState, WaitSet
+from cyclonedds.qos import DataReaderQos, DataWriterQos
+from cyclonedds.sub import DataReader
 
 from automotive import config
+from automotive.bus.app import Application
 from automotive.bus.diagnostics import DIAGNOSTICS_TOPIC, ROS2_TYPE
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import Properties
 from automotive.bus.qos import ROS2_DEFAULT_PROFILE, profile_name
+from automotive.bus.status import EventHook
 from automotive.cyclone.bounds import type_name  # re-exported: the name tools and tests use
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.automotive import ShapeType
@@ -35,7 +48,11 @@ from automotive.types.Platform import PlatformControl, PlatformStatus
 from automotive.types.Sensor import SensorObjectList
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.types.Vision import VisionSensor
+from automotive.wire import shm
 from automotive.wire.camera import frame_type
+from automotive.wire.filteredraw import filtered_raw_reader
+from automotive.wire.rawsample import RawSample, SampleKind
+from automotive.wire.sharedflow import FlowReader
 
 ROS2_POINTCLOUD = "sensor_msgs/msg/PointCloud2"
 # The types whose schema is the ROS 2 message (``ros2msg``), which Foxglove's ROS panels (Diagnostics) recognise.
@@ -50,16 +67,17 @@ class FlowSource:
     role: str
     default_topic: str
     data_type: type[Any] | None  # None: chosen by the application's properties (the camera's frame size)
+    shared: bool = False  # written through shared memory to the readers on the writer's host (FlowWriter)
 
 
 SOURCES = (
     FlowSource("vision", "Vision", "VisionTopic", VisionSensor),
-    FlowSource("lidar", "Lidar", "rt/LidarTopic", PointCloud2_),
+    FlowSource("lidar", "Lidar", "rt/LidarTopic", PointCloud2_, shared=True),
     FlowSource("sensor_fusion", "SensorObjects", "SensorObjects", SensorObjectList),
     FlowSource("collision_avoidance", "Alerts", "AlertTopic", DriverAlerts),
     FlowSource("collision_avoidance", "PlatformControl", "PlatformControl", PlatformControl),
     FlowSource("vehicle_platform", "PlatformStatus", "PlatformStatus", PlatformStatus),
-    FlowSource("camera_pub", "Camera", "CameraImageData", None),
+    FlowSource("camera_pub", "Camera", "CameraImageData", None, shared=True),
     FlowSource("shapes", "Shapes", "Circle", ShapeType),
 )
 
@@ -78,6 +96,7 @@ class Flow:
     topic: str
     data_type: type[Any]
     profile: str
+    shared: bool = False  # through shared memory from a writer on this host (see FlowInput)
 
     @property
     def type_name(self) -> str:
@@ -112,7 +131,7 @@ def system_flows(properties_dir: Path | None = None) -> list[Flow]:
         profile = profile_name(props, source.role)
         data_type = source.data_type or frame_type(props.get_str("config.imageSize", "full"),
                                                    f"{props.source}: config.imageSize")
-        flows.append(Flow(topic, data_type, profile))
+        flows.append(Flow(topic, data_type, profile, source.shared))
     return flows
 
 
@@ -175,3 +194,118 @@ def channel_metadata(flow: Flow, writer_qos: DataWriterQos, kind: str = "data") 
     """MCAP channel metadata: the writer's QoS (rosbag2's key), the DDS topic and type, and the sample kind."""
     return {"offered_qos_profiles": offered_qos_profiles(writer_qos), "dds_topic": flow.topic,
             "dds_type": flow.type_name, "dds_sample_kind": kind}
+
+
+class FlowInput:
+    """One flow as the recorder and the live bridge read it: serialized samples as received, never deserialized.
+
+    A DDS reader with the reader side of the flow's profile and the tool's ``overrides`` (a recorder keeps every
+    sample, the bridge the newest), read raw (automotive.wire.rawsample; filtered when the topic has a content filter).
+    A shared flow (``Flow.shared``) also has its shared memory (automotive.wire.sharedflow.FlowReader): the samples of
+    writers on this host come from there (exactly the bytes of their DDS samples, with the same source timestamp), and
+    the DDS copies of those writers' samples are dropped, so that no sample is taken twice. The shared-memory
+    subscriber's QoS (its depth and deadline) is the profile's reader QoS with ``shared_overrides`` (by default the DDS
+    reader's ``overrides``).
+    """
+
+    def __init__(self, app: Application, flow: Flow, overrides: tuple[Any, ...] = (), hook: EventHook | None = None,
+                 shared_overrides: tuple[Any, ...] | None = None):
+        self.flow = flow
+
+        def make_reader(marking: tuple[Any, ...]) -> DataReader[Any]:
+            return app.bus.reader(flow.topic, flow.data_type, flow.profile, hook, overrides=(*overrides, *marking))
+
+        self.shared: FlowReader | None = None
+        if flow.shared:
+            qos = DataReaderQos(*(overrides if shared_overrides is None else shared_overrides),
+                                base=app.profiles.reader_qos(app.library, flow.profile))
+            self.shared = FlowReader(app, flow.topic, qos, make_reader)
+            reader = self.shared.reader
+        else:
+            reader = make_reader(())
+        self.raw = filtered_raw_reader(reader, app.filters.predicate(flow.topic, flow.data_type))
+        self.from_shared_memory = 0  # samples taken from shared memory
+        self.dropped = 0  # DDS samples of writers that sent them through shared memory too (left out)
+
+    @property
+    def reader(self) -> DataReader[Any]:
+        return self.raw.reader
+
+    @property
+    def on_shared_memory(self) -> bool:
+        """Whether samples of writers on this host come through shared memory (else all come on DDS)."""
+        return self.shared is not None and self.shared.shared is not None
+
+    def attach(self, waitset: WaitSet) -> None:
+        """Have ``waitset`` (woken by the DDS reader) woken by samples in shared memory too."""
+        if self.shared is not None:
+            waitset.attach(self.shared.guard)
+
+    def drain(self, limit: int = 64) -> Iterator[tuple[RawSample, int]]:
+        """Take until nothing is left, yielding each sample with its reception time (ns since the epoch): first those
+        of shared memory (copied: valid after the loan ends), then DDS's, less the DDS copies of shared ones."""
+        shared = self.shared
+        if shared is not None:
+            while True:
+                with shared.take_shared(limit) as lent:
+                    if not lent:
+                        break
+                    receive_ns = time.time_ns()
+                    copies = [(bytes(sample.data), sample.source_timestamp) for sample in lent]
+                self.from_shared_memory += len(copies)
+                for data, stamp in copies:
+                    # through the raw reader's own path, so that its content filter (if any) applies alike
+                    for sample in self.raw.samples_of(data, _shared_info(stamp)):
+                        yield sample, receive_ns
+        for sample, receive_ns in self.raw.drain(limit):
+            if shared is not None and sample.kind is SampleKind.DATA and shared.from_shared(sample.writer):
+                self.dropped += 1
+                continue
+            yield sample, receive_ns
+
+    def shared_counts(self) -> str:
+        """What came through shared memory and what DDS copies were left out ("" for a flow without)."""
+        if self.shared is None:
+            return ""
+        return f"shared_memory={self.from_shared_memory} dds_copies_left_out={self.dropped}"
+
+    def check_deadline(self) -> None:
+        """Report a missed deadline of the samples that come through shared memory (after each wake-up)."""
+        if self.shared is not None:
+            self.shared.check_deadline()
+
+    def close(self) -> None:
+        if self.shared is not None:
+            self.shared.close()
+
+
+def _shared_info(source_timestamp: int) -> SimpleNamespace:
+    """What DDS's sample info would say of a sample that came through shared memory: valid data of a live instance
+    (no writer handle: the DDS reader never saw it)."""
+    return SimpleNamespace(source_timestamp=source_timestamp, publication_handle=0, instance_handle=0,
+                           instance_state=InstanceState.Alive, valid_data=True, sample_rank=0)
+
+
+def check_transport(props: Properties) -> None:
+    """config.transport and config.shmPrefix checked at start (a bad value is one line even when no flow read uses
+    shared memory)."""
+    shm.transport(props)
+    shm.prefix_of(props)
+
+
+def open_inputs(app: Application, flows: list[Flow], overrides: tuple[Any, ...] = (), hook: EventHook | None = None,
+                shared_overrides: tuple[Any, ...] | None = None) -> list[FlowInput]:
+    """A FlowInput of each flow (all closed again when one cannot be made); says which come through shared memory."""
+    inputs: list[FlowInput] = []
+    try:
+        for flow in flows:
+            inputs.append(FlowInput(app, flow, overrides, hook, shared_overrides))
+    except BaseException:
+        for made in inputs:
+            made.close()
+        raise
+    shared = [flow_input for flow_input in inputs if flow_input.on_shared_memory]
+    if shared:
+        app.log.info("%s: shared memory with writers on this host, DDS with the others",
+                     ", ".join(flow_input.flow.topic for flow_input in shared))
+    return inputs

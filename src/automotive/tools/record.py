@@ -5,6 +5,10 @@ choose), each read with the reader side of its writer's QoS profile and a histor
 serialized samples, never deserialized (automotive.wire.rawsample)  -->  a bounded queue  -->  the writer thread:
 MCAP chunks (compressed with config.compression=lz4|zstd; none by default), on disk every second  -->  --output FILE
 
+The camera's frames and the LiDAR's clouds of writers on this host come through shared memory (automotive.wire.shm;
+config.transport=udp: on DDS), the very bytes and source timestamp their DDS samples carry, and are recorded alike;
+the DDS copies of those writers' samples are left out (automotive.tools.flows.FlowInput), so none is recorded twice.
+
 The file: MCAP profile ``ros2``, one channel per topic, message encoding ``cdr``: the bytes exactly as received
 (encapsulation header included); log time = reception, publish time = the writer's source timestamp; disposals and
 unregistrations on channels ``<topic>/dispose`` and ``<topic>/unregister`` (a sample carrying the instance's key).
@@ -47,12 +51,21 @@ from automotive.bus.cli import output_file
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
-from automotive.tools.flows import Flow, channel_metadata, flows_with_diagnostics, select
-from automotive.wire.filteredraw import FilteredRawReader, filtered_raw_reader
+from automotive.tools.flows import (
+    Flow,
+    FlowInput,
+    channel_metadata,
+    check_transport,
+    flows_with_diagnostics,
+    open_inputs,
+    select,
+)
+from automotive.wire.filteredraw import FilteredRawReader
 from automotive.wire.rawsample import RawSample, SampleKind
 
 # The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
-PROPERTY_KEYS = PropertyKeys.of("config.compression", "config.chunkSize", "config.queueMB")
+PROPERTY_KEYS = PropertyKeys.of("config.compression", "config.chunkSize", "config.queueMB", "config.transport",
+                                "config.shmPrefix")
 
 TAKE_LIMIT = 64  # samples per take
 FLUSH_INTERVAL_S = 1.0  # finish the open chunk and hand it to the OS at least this often: what a SIGKILL can cost
@@ -198,6 +211,8 @@ class Recording:
                  chunk_size: int, queue_bytes: int, on_failure: Callable[[], None]):
         self.path = file.path
         self.file = file
+        self.compression = compression
+        self.chunk_size = chunk_size
         self.flows = {flow.topic: flow for flow in flows}
         self.writer_qos = writer_qos
         self.counts = {flow.topic: TopicCounts() for flow in flows}
@@ -441,6 +456,7 @@ def body(app: Application) -> None:
     compression = app.props.get_choice("config.compression", list(COMPRESSIONS), "none")
     chunk_size = app.props.get_int("config.chunkSize", 1024 * 1024, minimum=1024)
     queue_bytes = int(app.props.get_float("config.queueMB", 512, minimum=1) * 1e6)
+    check_transport(app.props)
     writer_qos = {flow.topic: app.profiles.writer_qos(app.library, flow.profile) for flow in flows}
     path: Path = app.args.output
     recording = Recording(open_output(path, app.args.overwrite), flows, writer_qos, compression, chunk_size,
@@ -453,24 +469,40 @@ def body(app: Application) -> None:
     # Every sample kept until taken (the profile's history could replace an untaken one); the rest of the reader
     # QoS is the profile's, so reliable flows are read reliably and the alert's transient-local state is fetched.
     # A topic with a content filter (--filter, config.filter.<Topic>) records only the samples it accepts.
-    readers = [(flow.topic, filtered_raw_reader(app.bus.reader(flow.topic, flow.data_type, flow.profile, on_event,
-                                                               overrides=(Policy.History.KeepAll,)),
-                                                app.filters.predicate(flow.topic, flow.data_type)))
-               for flow in flows]
-    app.log.info("recording %d topic(s) to %s (%s, chunks of %d bytes): %s", len(flows), path, compression,
-                 chunk_size, ", ".join(flow.topic for flow in flows))
+    try:
+        inputs = open_inputs(app, flows, (Policy.History.KeepAll,), on_event)
+    except BaseException:
+        recording.close()
+        raise
+    try:
+        record_until_stopped(app, recording, inputs)
+    finally:
+        for flow_input in inputs:
+            flow_input.close()
+
+
+def record_until_stopped(app: Application, recording: Recording, inputs: list[FlowInput]) -> None:
+    """Record until stopped, then end the file and say what it holds."""
+    flows = [flow_input.flow for flow_input in inputs]
+    path = recording.path
+    app.log.info("recording %d topic(s) to %s (%s, chunks of %d bytes): %s", len(flows), path,
+                 recording.compression, recording.chunk_size, ", ".join(flow.topic for flow in flows))
     started = time.monotonic()
     deadline = started + app.args.duration if app.args.duration else None
     every_second = Every()
 
     def take_all() -> None:
-        for topic, raw in readers:
-            for sample, receive_ns in raw.drain(TAKE_LIMIT):
-                recording.offer(topic, sample, receive_ns)
+        for flow_input in inputs:
+            for sample, receive_ns in flow_input.drain(TAKE_LIMIT):
+                recording.offer(flow_input.flow.topic, sample, receive_ns)
                 app.tick()
+            flow_input.check_deadline()
 
+    waitset = app.waitset(*(flow_input.reader for flow_input in inputs))
+    for flow_input in inputs:
+        flow_input.attach(waitset)
     try:
-        for _ in app.wake_ups(app.waitset(*(raw.reader for _, raw in readers)), timeout_s=0.2):
+        for _ in app.wake_ups(waitset, timeout_s=0.2):
             take_all()
             now = time.monotonic()
             if every_second.due():
@@ -485,12 +517,16 @@ def body(app: Application) -> None:
     written = sum(c.bytes for c in recording.counts.values())
     size = recording.file_size()
     app.stats.record("summary", seconds=elapsed, file_bytes=size, **recording.figures())
-    filtered = {topic: raw.filtered_out for topic, raw in readers if isinstance(raw, FilteredRawReader)}
+    by_topic = {flow_input.flow.topic: flow_input for flow_input in inputs}
     for topic, counts in recording.counts.items():
-        app.log.info("summary %s: messages=%d changes=%d MB=%.3f lost=%d dds_lost=%d%s", topic, counts.messages,
-                     counts.changes, counts.bytes / 1e6, counts.lost, counts.dds_lost,
-                     f" filtered_out={filtered[topic]}" if topic in filtered else "")
+        flow_input = by_topic[topic]
+        filtered = (f" filtered_out={flow_input.raw.filtered_out}" if isinstance(flow_input.raw, FilteredRawReader)
+                    else "")
+        shared = f" {flow_input.shared_counts()}" if flow_input.shared_counts() else ""
+        app.log.info("summary %s: messages=%d changes=%d MB=%.3f lost=%d dds_lost=%d%s%s", topic, counts.messages,
+                     counts.changes, counts.bytes / 1e6, counts.lost, counts.dds_lost, filtered, shared)
     # a ratio only says something of a compressed file
+    compression = recording.compression
     ratio = f" (compression {compression}, ratio {written / size:.2f})" if compression != "none" and size else ""
     app.log.info("summary: %s in %.1f s, file %s of %.2f MB%s", recording.totals(), elapsed, path, size / 1e6, ratio)
     if recording.failure is not None:
