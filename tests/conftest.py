@@ -166,3 +166,18 @@ def virtual_display() -> Iterator[str]:
     finally:
         process.terminate()
         process.wait(timeout=10)
+
+
+_shm_prefixes = itertools.count(1)
+
+
+@pytest.fixture
+def prefix() -> Iterator[str]:
+    """A shared-memory file prefix (``config.shmPrefix``) for this test only; whatever remains of it is removed
+    afterwards (tests/shm_helpers.py). Name it first among a test's fixtures: its clean-up then runs after the
+    programs the test started have stopped."""
+    from shm_helpers import remove_files
+
+    name = f"autotest{os.getpid()}x{next(_shm_prefixes)}_"
+    yield name
+    remove_files(name)

@@ -16,7 +16,6 @@ no other process on this machine in shared memory and leaves nothing in /dev/shm
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import os
 import re
 import shutil
@@ -42,7 +41,7 @@ from matplotlib.artist import Artist
 from matplotlib.colors import to_rgb
 from matplotlib.lines import Line2D
 from PIL import Image, ImageGrab
-from test_shm import files_of
+from shm_helpers import files_of
 
 from automotive.bus.endpoints import Databus
 from automotive.sim.scene import BACKGROUND_RGB, GROUND_RGB, SHAPE_RGB, LidarScene, ScanGrid
@@ -61,17 +60,6 @@ CLOUD_LINE = r"lidar_view: cloud (\d+): cloud stamped (\d+\.\d{9}), frame 'map':
 SHARED_COUNTS = re.compile(r"shared memory: (\d+) clouds sent, (\d+) written on DDS")
 
 
-_prefixes = itertools.count(1)
-
-
-@pytest.fixture
-def prefix() -> Iterator[str]:
-    """A file-name prefix for this test's iceoryx2 files only (as test_shm's fixture); whatever remains of them is
-    removed afterwards. Name it first among a test's fixtures: its clean-up then runs after the apps stopped."""
-    name = f"lidarview{os.getpid()}x{next(_prefixes)}_"
-    yield name
-    for path in files_of(name, include_global=True):
-        path.unlink(missing_ok=True)
 
 
 def private(prefix: str) -> list[str]:

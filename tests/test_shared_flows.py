@@ -10,31 +10,17 @@ modules; another vendor's late reader of the camera in tests/test_late_joiners.p
 
 from __future__ import annotations
 
-import itertools
-import os
 import signal
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
-import pytest
 from dds_helpers import make_bus, wait_until
 from lidar_helpers import Clouds
-from test_shm import files_of
+from shm_helpers import files_of
 
 from automotive.bus import stats as records
 
 TIMEOUT = 120.0
-_prefixes = itertools.count(1)
-
-
-@pytest.fixture
-def prefix() -> Iterator[str]:
-    """A file-name prefix for this test's iceoryx2 files only; whatever remains of it is removed afterwards."""
-    name = f"flowtest{os.getpid()}x{next(_prefixes)}_"
-    yield name
-    for path in files_of(name, include_global=True):
-        path.unlink(missing_ok=True)
 
 
 def lidar_records(path: Path) -> int:

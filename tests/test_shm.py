@@ -15,14 +15,11 @@ private domain per test.
 
 from __future__ import annotations
 
-import contextlib
-import itertools
-import os
 import re
 import signal
 import subprocess
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +30,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.topic import Topic
 from rti_peer import RtiPeer
+from shm_helpers import files_of
 from test_camera import BEST_EFFORT_QOS, totals
 
 from automotive.bus import stats
@@ -48,35 +46,12 @@ ROOT = Path(__file__).resolve().parent.parent
 PROPERTIES = ROOT / "src" / "automotive" / "config" / "properties"
 SHORT_BLOCKING_QOS = ROOT / "tests" / "data" / "camera_short_blocking_qos.xml"
 TIMEOUT = 120.0  # starting Python, Cyclone and iceoryx2 on a loaded 2-core machine can take a while
-ICEORYX_ROOT = Path("/tmp/iceoryx2")  # iceoryx2's folder of node and service records
-GLOBAL_FILE = re.compile(r"node\.[\d_]+\.global_mgmt$")  # iceoryx2's one shared file per prefix, not a service's
 SMALL_FRAMES = ["-D", "config.imageSize=64KiB"]  # 64 KiB frames: the module's run time stays short
 # What camera_sub and camera_pub say when they use shared memory (and DDS with everyone else).
 VIEWER_ON_SHM = r"\(shared memory with publishers on this host, keeping the last {depth}; DDS with the others\)"
 PUBLISHER_ON_SHM = "; shared memory with subscribers on this host, DDS with the others"
 CLOUD = re.compile(r"lidar sample stamped (\d+)\.(\d{9}): \d+ points")  # sensor fusion, at DEBUG (the tests' log level)
 LIDAR_SENT = r"shared memory: (\d+) clouds sent, (\d+) written on DDS"
-_prefixes = itertools.count(1)
-
-
-@pytest.fixture
-def prefix() -> Iterator[str]:
-    """A file-name prefix for this test's iceoryx2 files only; whatever remains of it is removed afterwards."""
-    name = f"autotest{os.getpid()}x{next(_prefixes)}_"
-    yield name
-    for path in files_of(name, include_global=True):
-        path.unlink(missing_ok=True)
-        if path.parent.parent == ICEORYX_ROOT / "nodes":  # a node's own folder (named by its id), left empty
-            with contextlib.suppress(OSError):
-                path.parent.rmdir()
-
-
-def files_of(prefix: str, include_global: bool = False) -> set[Path]:
-    """This prefix's files in /dev/shm and under iceoryx2's folder /tmp/iceoryx2."""
-    found = set(Path("/dev/shm").glob(f"{prefix}*"))
-    if ICEORYX_ROOT.is_dir():
-        found |= {path for path in ICEORYX_ROOT.rglob(f"{prefix}*") if not path.is_dir()}  # files and event sockets
-    return found if include_global else {path for path in found if not GLOBAL_FILE.search(path.name)}
 
 
 def shm_args(domain_id: int, prefix: str, *more: str) -> list[str]:

@@ -14,12 +14,9 @@ Every test uses a private DDS domain (the ``domain_id`` fixture) and a private i
 from __future__ import annotations
 
 import base64
-import itertools
-import os
 import re
 import signal
 from collections import Counter
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +24,7 @@ import pytest
 from foxglove_node import FoxgloveDecoder, install, json_lines
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
+from shm_helpers import files_of
 from test_bridge import start_bridge
 from test_foxglove import compare, sha256
 
@@ -40,31 +38,11 @@ FRAME_BYTES = 65_536
 CAMERA_TOPIC = "CameraImageData"
 LIDAR_TOPIC = "rt/LidarTopic"
 SHM_WARNING = "goes over DDS only"  # shm.unavailable's line: shared memory could not be used
-_prefixes = itertools.count(1)
-
-
-@pytest.fixture
-def prefix() -> Iterator[str]:
-    """An iceoryx2 file prefix for this test only (as tests/test_shm.py's); whatever remains of it is removed after
-    the test, and a test that leaves files fails on its own (``assert_no_files``)."""
-    name = f"autotools{os.getpid()}x{next(_prefixes)}_"
-    yield name
-    for path in files_of(name):
-        path.unlink(missing_ok=True)
-
-
-def files_of(prefix: str) -> set[Path]:
-    """The prefix's files in /dev/shm and under iceoryx2's folder /tmp/iceoryx2 (its event sockets)."""
-    found = set(Path("/dev/shm").glob(f"{prefix}*"))
-    root = Path("/tmp/iceoryx2")
-    if root.is_dir():
-        found |= {path for path in root.rglob(f"{prefix}*") if not path.is_dir()}
-    return found
 
 
 def assert_no_files(prefix: str) -> None:
     """A clean stop of every process leaves no service of ours (iceoryx2's one global file per prefix aside)."""
-    left = {path for path in files_of(prefix) if not re.search(r"node\.[\d_]+\.global_mgmt$", path.name)}
+    left = files_of(prefix)
     assert not left, f"left in shared memory: {sorted(map(str, left))}"
 
 

@@ -38,7 +38,47 @@ def _listener_report(endpoint: DataWriter[Any] | DataReader[Any], event: str) ->
     return report
 
 
-class FlowWriter:
+P = TypeVar("P", shm.SharedWriter, shm.SharedReader)
+
+
+class _SharedEnd:
+    """What a flow's writer and reader share: the topic's shared memory and this process's port in it, or neither
+    when shared memory cannot be used (``config.transport=udp``, no room in /dev/shm, iceoryx2 refusing)."""
+
+    memory: shm.SharedMemory | None
+    shared: Any
+
+    def _open(self, app: Application, topic: str, port: Callable[[shm.SharedMemory], P]) -> P | None:
+        self.memory = shm.open_for(app.props, app.name, app.domain_id, topic, app.log)
+        if self.memory is None:
+            return None
+        try:
+            return port(self.memory)
+        except shm.Unavailable as error:
+            self.memory.close()
+            self.memory = None
+            shm.unavailable(app.props, topic, str(error), app.log)
+            return None
+
+    @property
+    def user_data(self) -> tuple[Any, ...]:
+        """The policies that mark the DDS endpoint as this locality's (none without shared memory)."""
+        return (self.memory.user_data,) if self.memory is not None else ()
+
+    @property
+    def key(self) -> str | None:
+        return self.memory.key if self.memory is not None else None
+
+    def close(self) -> None:
+        if self.shared is not None:
+            self.shared.close()
+            self.shared = None
+        if self.memory is not None:
+            self.memory.close()
+            self.memory = None
+
+
+class FlowWriter(_SharedEnd):
     """The writer of a large flow: shared memory to this host's subscribers, DDS to every other reader.
 
     ``max_length`` bounds a serialized sample (the publisher's slots are that big). Shared memory that cannot be used
@@ -50,24 +90,16 @@ class FlowWriter:
         self.app = app
         self.topic = app.topic_name(role, default_topic)
         qos = app.profiles.writer_qos(app.library, app.profile(role))
-        self.memory = shm.open_for(app.props, app.name, app.domain_id, self.topic, app.log)
-        self.shared: shm.SharedWriter | None = None
-        if self.memory is not None:
-            try:
-                self.shared = shm.SharedWriter(self.memory, max_length, qos, lambda: app.running)
-            except shm.Unavailable as error:
-                self.memory.close()
-                self.memory = None
-                shm.unavailable(app.props, self.topic, str(error), app.log)
-        self.dds_readers = shm.DdsReaders(self.memory.key if self.memory is not None else None)
+        self.shared: shm.SharedWriter | None = self._open(
+            app, self.topic, lambda memory: shm.SharedWriter(memory, max_length, qos, lambda: app.running))
+        self.dds_readers = shm.DdsReaders(self.key)
 
         def on_event(event: str, topic: str, status: Any) -> None:
             self.dds_readers.hook(event, topic, status)
             if hook is not None:
                 hook(event, topic, status)
 
-        overrides = (self.memory.user_data,) if self.memory is not None else ()
-        self.writer: DataWriter[Any] = app.writer(role, data_type, default_topic, on_event, overrides)
+        self.writer: DataWriter[Any] = app.writer(role, data_type, default_topic, on_event, self.user_data)
         self.dds_readers.writer = self.writer
         self.raw = RawWriter(self.writer)
         # The offered deadline of samples that go through shared memory only (DDS watches those it writes).
@@ -146,16 +178,8 @@ class FlowWriter:
             self._registered = data
         return stamp
 
-    def close(self) -> None:
-        if self.shared is not None:
-            self.shared.close()
-            self.shared = None
-        if self.memory is not None:
-            self.memory.close()
-            self.memory = None
 
-
-class FlowReader:
+class FlowReader(_SharedEnd):
     """The reader of a large flow: a DDS reader (marked when shared memory is used) and a shared-memory subscriber,
     woken by one WaitSet. DDS samples of writers on this host's shared memory are dropped (:meth:`from_shared`):
     they came through shared memory."""
@@ -166,17 +190,10 @@ class FlowReader:
         given policies in place of its profile's (the locality's USER_DATA). :meth:`of_role` serves applications."""
         self.app = app
         self.topic = topic
-        self.memory = shm.open_for(app.props, app.name, app.domain_id, topic, app.log)
-        self.shared: shm.SharedReader | None = None
-        if self.memory is not None:
-            try:
-                self.shared = shm.SharedReader(self.memory, reader_qos)
-            except shm.Unavailable as error:
-                self.memory.close()
-                self.memory = None
-                shm.unavailable(app.props, topic, str(error), app.log)
-        self.reader = make_reader((self.memory.user_data,) if self.memory is not None else ())
-        self.local = shm.LocalWriters(self.reader, self.memory.key if self.memory is not None else None)
+        self.shared: shm.SharedReader | None = self._open(app, topic,
+                                                          lambda memory: shm.SharedReader(memory, reader_qos))
+        self.reader = make_reader(self.user_data)
+        self.local = shm.LocalWriters(self.reader, self.key)
         self.guard = GuardCondition(app.bus.participant)
         self.deadline = shm.DeadlineWatch(shm.deadline_s(reader_qos),
                                           _listener_report(self.reader, "requested_deadline_missed"))
@@ -225,11 +242,3 @@ class FlowReader:
 
     def memory_publishers(self) -> int:
         return self.memory.publishers if self.memory is not None else 0
-
-    def close(self) -> None:
-        if self.shared is not None:
-            self.shared.close()
-            self.shared = None
-        if self.memory is not None:
-            self.memory.close()
-            self.memory = None
