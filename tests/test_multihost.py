@@ -329,3 +329,27 @@ def test_a_late_rti_participant_on_another_host_finds_every_application_on_a_mul
         str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background", "-v",
         "--domain", str(hosts.domain_id), "--interface", hosts.a.device, "--log-dir", str(tmp_path / "a")])
     late_rti_participant(hosts, launcher, "--lan")
+
+
+def test_camera_frames_go_through_shared_memory_on_their_host_and_over_udp_to_the_other_at_once(
+        prefix: str, hosts: TwoHosts) -> None:
+    """The shipped transport (auto) on both hosts, with the same shared-memory prefix and one /dev/shm (the two
+    "hosts" share this machine): the viewer beside the publisher gets the frames through shared memory, the one on
+    the other host over UDP, each frame once; the publisher writes every frame on DDS for the remote one only."""
+    frames = 40
+    common = ["-D", f"config.shmPrefix={prefix}", "-D", "config.imageSize=64KiB", "--count", str(frames)]
+    local = hosts.app(hosts.a, "camera_sub", *common)
+    remote = hosts.app(hosts.b, "camera_sub", *common)
+    for viewer in (local, remote):
+        viewer.wait_for("viewing CameraImageData_64KiB frames")
+    publisher = hosts.app(hosts.a, "camera_pub", *common, "-D", "config.pubInterval=20",
+                          "-D", "config.waitSubscribers=2")
+    for viewer in (local, remote):
+        assert viewer.wait_exit(timeout=120) == 0, viewer.output[-3000:]
+        assert re.search(rf"totals: samples={frames} size=65536 .* mismatches=0 .* gaps=0", viewer.output), \
+            viewer.output[-3000:]
+    assert publisher.wait_exit(timeout=120) == 0, publisher.output[-3000:]
+    assert f"shared memory: {frames} frames sent, {frames} written on DDS" in publisher.output, publisher.output
+    assert "shared memory with publishers on this host" in local.output
+    assert "goes over DDS only" not in local.output + remote.output + publisher.output
+    hosts.assert_no_cyclone_lines()
