@@ -162,18 +162,19 @@ class FlowWriter(_SharedEnd):
             console.traffic.count_out(self.topic)
             return time.time_ns()
         data = serdata.serialize(self.writer, sample)
-        stamp = time.time_ns()  # as DDS stamps a write: once the sample is serialized
 
+        # Stamped as DDS stamps a write, once the sample is serialized: here once it is in the loaned memory too.
         def fill(view: memoryview) -> int:
             view[:] = data
-            return stamp
+            return time.time_ns()
 
         def write_dds() -> int:
+            stamp = time.time_ns()
             self.raw.write(data, stamp)
             return stamp
 
         written = self.sent_dds
-        self.publish(len(data), fill, write_dds)
+        stamp = self.publish(len(data), fill, write_dds)
         if self.sent_dds > written:
             self._registered = data
         return stamp
