@@ -41,6 +41,8 @@ import json
 import os
 import sys
 import time
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
@@ -305,10 +307,57 @@ def report(series: list[Series], seen: Seen, args: argparse.Namespace) -> int:
     return 0
 
 
-def bench(args: argparse.Namespace) -> int:
+def require_root(prog: str) -> None:
+    """One line and exit code 2 unless this process may make a network namespace (root)."""
     if os.geteuid() != 0:
-        print(f"{PROG}: needs root (it runs the system in a network namespace of its own)", file=sys.stderr)
-        return 2
+        print(f"{prog}: needs root (it runs the system in a network namespace of its own)", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def system_env() -> dict[str, str]:
+    """The environment of the system in its namespace: Cyclone's defaults there (no CYCLONEDDS_URI), and the HMI's
+    console alert box, no window on the user's display."""
+    env = {key: value for key, value in os.environ.items() if key != "CYCLONEDDS_URI"}
+    env.update(DISPLAY="", WAYLAND_DISPLAY="")
+    return env
+
+
+@contextmanager
+def system_in_namespace(prog: str, name: str, domain: int, work: Path, launch_args: Sequence[str],
+                        env: Mapping[str, str]) -> Iterator[list[Series]]:
+    """The whole system as `automotive launch` starts it (every application, camera included, shipped properties;
+    background mode, --quiet: the applications' lines go to their log files in ``work``/logs only), in a network
+    namespace ``name`` made for it, whose loopback is private. Yields a Series per application, the launcher's last,
+    once every application runs (the launcher's running line, printed); on leaving, stops the launcher (which stops
+    the applications) and deletes the namespace. ``launch_args``: more of the launcher's arguments (--stats-dir, -D)."""
+    log_dir = work / "logs"
+    command = ["--mode", "background", "--quiet", "--domain", str(domain), "--log-dir", str(log_dir),
+               "--stop-timeout", f"{STOP_TIMEOUT_S:g}", *launch_args]
+    try:
+        namespace = netlab.Namespace(name)
+    except netlab.NetlabError as error:
+        raise SystemExit(f"{prog}: {error}") from None
+    try:
+        launcher = Child(LAUNCHER, program_command("launch", *command, python=namespace.prefix), env=dict(env))
+        try:
+            try:
+                line = launcher.wait_for(launch.RUNNING_LINE, timeout=120)
+            except AssertionError:
+                raise SystemExit(f"{prog}: the launcher ended before the system ran:\n{launcher.output[-2000:]}") \
+                    from None
+            print(line.split("| ", 1)[1].strip(), flush=True)
+            info = json.loads((log_dir / "launch.pid").read_text())
+            series = [Series(app, psutil.Process(pid)) for app, pid in info["apps"].items()]
+            series.append(Series(LAUNCHER, psutil.Process(int(info["launcher"]))))
+            yield series
+        finally:
+            launcher.stop(timeout=STOP_TIMEOUT_S + 20)
+    finally:
+        namespace.delete()
+
+
+def bench(args: argparse.Namespace) -> int:
+    require_root(PROG)
     # SIGTERM (a background run stopped with kill) ends the run as Ctrl-C does: the system stopped, the namespace and
     # the temporary work folder gone.
     with work_folder("bench-soak-", args.work) as work:
@@ -316,44 +365,20 @@ def bench(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace, work: Path) -> int:
-    log_dir = work / "logs"
     camera, hmi = work / "camera_sub.jsonl", work / "hmi.jsonl"
-    env = {key: value for key, value in os.environ.items() if key != "CYCLONEDDS_URI"}
-    env.update(DISPLAY="", WAYLAND_DISPLAY="")  # the HMI's console alert box: no window on the user's display
+    env = system_env()
     if args.memtrace is not None:
         args.memtrace.mkdir(parents=True, exist_ok=True)
         env.update(AUTOMOTIVE_MEMTRACE=str(args.memtrace.resolve()), AUTOMOTIVE_MEMTRACE_INTERVAL="60")
-    # --quiet: the applications' lines go to their log files only, not through this program's memory.
-    launch_args = ["--mode", "background", "--quiet", "--domain", str(args.domain), "--log-dir", str(log_dir),
-                   "--stop-timeout", f"{STOP_TIMEOUT_S:g}", "--stats-dir", f"camera_sub:{work}",
-                   "--stats-dir", f"hmi:{work}"]
-
-    try:
-        namespace = netlab.Namespace(f"bench-soak-{os.getpid()}")  # its loopback is private
-    except netlab.NetlabError as error:
-        print(f"{PROG}: {error}", file=sys.stderr)
-        return 1
     samples_out = open(args.samples, "w", encoding="utf-8") if args.samples else None
     try:
-        launcher = Child(LAUNCHER, program_command("launch", *launch_args, python=namespace.prefix), env=env)
-        try:
-            try:
-                line = launcher.wait_for(launch.RUNNING_LINE, timeout=120)
-            except AssertionError:
-                raise SystemExit(f"{PROG}: the launcher ended before the system ran:\n{launcher.output[-2000:]}") \
-                    from None
-            print(line.split("| ", 1)[1].strip(), flush=True)
-            info = json.loads((log_dir / "launch.pid").read_text())
-            series = [Series(name, psutil.Process(pid)) for name, pid in info["apps"].items()]
-            series.append(Series(LAUNCHER, psutil.Process(int(info["launcher"]))))
+        with system_in_namespace(PROG, f"bench-soak-{os.getpid()}", args.domain, work,
+                                 ["--stats-dir", f"camera_sub:{work}", "--stats-dir", f"hmi:{work}"], env) as series:
             kept = f"; work folder {work}" if args.work is not None else ""
             print(f"sampling {len(series) - 1} applications and the launcher every {args.interval:g} s for "
                   f"{args.minutes:g} min (warm-up {args.warmup:g} min){kept}", flush=True)
             sample_until(series, args, camera, hmi, samples_out)
-        finally:
-            launcher.stop(timeout=STOP_TIMEOUT_S + 20)
     finally:
-        namespace.delete()
         if samples_out is not None:
             samples_out.close()
     return report(series, Seen.read(camera, hmi), args)
