@@ -434,11 +434,15 @@ def main(argv: list[str] | None = None) -> int:
         return report(series, Seen.read(args.work / "camera_sub.jsonl", args.work / "hmi.jsonl"), args)
     if args.minutes <= 0 or args.warmup < 0 or args.warmup >= args.minutes or args.interval <= 0:
         parser.error("--minutes must be > 0, --warmup from 0 to below --minutes, --interval > 0")
-    if args.work is not None and (args.work.exists() and not args.work.is_dir() or args.work.is_dir()
-                                  and any(args.work.iterdir())):
-        # the camera's and the HMI's records are appended to: an earlier run's would count in this one
-        parser.error(f"--work {args.work}: expected a new or empty folder")
+    check_work_folder(parser, args.work)
     return bench(args)
+
+
+def check_work_folder(parser: argparse.ArgumentParser, work: Path | None) -> None:
+    """--work DIR must be a new or empty folder: the status records are appended to, and an earlier run's would count
+    in this one."""
+    if work is not None and (work.exists() and not work.is_dir() or work.is_dir() and any(work.iterdir())):
+        parser.error(f"--work {work}: expected a new or empty folder")
 
 
 if __name__ == "__main__":

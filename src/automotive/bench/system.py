@@ -44,7 +44,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from automotive.bench.soak import LAUNCHER, Series, require_root, system_env, system_in_namespace
+from automotive.bench.soak import (
+    LAUNCHER,
+    Series,
+    check_work_folder,
+    require_root,
+    system_env,
+    system_in_namespace,
+)
 from automotive.bus import stats as status_records
 from automotive.bus.cli import ArgumentParser, add_domain_option
 from automotive.bus.errors import ConfigError
@@ -390,10 +397,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if not args.seconds > 0 or not args.warmup >= 0:
         parser.error(f"--seconds {args.seconds:g} and --warmup {args.warmup:g}: expected more than 0 and 0 or more")
-    if args.work is not None and (args.work.exists() and not args.work.is_dir() or args.work.is_dir()
-                                  and any(args.work.iterdir())):
-        # the status records are appended to: an earlier run's would count in this one
-        parser.error(f"--work {args.work}: expected a new or empty folder")
+    check_work_folder(parser, args.work)
     return bench(args)
 
 

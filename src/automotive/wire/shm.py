@@ -509,36 +509,16 @@ class SharedReader:
             self.notifier = memory.consumed.notifier_builder().create()
         self._waking: threading.Thread | None = None
         self._stop = threading.Event()
-        self.publisher_left = threading.Event()  # set when a publisher said it leaves; cleared by its reader
 
     def wake(self, guard: GuardCondition) -> None:
         """Set ``guard`` whenever samples were sent or a publisher leaves, from a thread of its own."""
         def run() -> None:
             while not self._stop.is_set():
-                activations = _wait(self.listener, WAIT_SLICE_S)
-                if activations:
-                    if any(activation.id.as_value == LEAVING for activation in activations):
-                        self.publisher_left.set()
+                if _wait(self.listener, WAIT_SLICE_S):
                     guard.set(True)
 
         self._waking = threading.Thread(target=run, name=f"shm-wake {self.memory.topic}", daemon=True)
         self._waking.start()
-
-    def wake_ups(self, running: Callable[[], bool], timeout_s: float = 1.0) -> Iterator[bool]:
-        """Without a WaitSet: yield after each wake-up (samples sent, or a timeout) while ``running()``; True once
-        the publisher left."""
-        while running():
-            leaving = False
-            waited = 0.0
-            while running() and waited < timeout_s:
-                activations = _wait(self.listener, WAIT_SLICE_S)
-                if activations:
-                    leaving = any(activation.id.as_value == LEAVING for activation in activations)
-                    break
-                waited += WAIT_SLICE_S
-            publishers = self.memory.publishers
-            if running():
-                yield leaving and publishers == 0
 
     def take(self, limit: int = 16) -> LentShared:
         """Up to ``limit`` samples (at most BORROWED at once), valid inside ``with reader.take() as samples:``."""
