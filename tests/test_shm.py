@@ -15,6 +15,7 @@ private domain per test.
 
 from __future__ import annotations
 
+import logging
 import re
 import signal
 import subprocess
@@ -174,6 +175,36 @@ def test_a_stalled_or_dead_subscriber_holds_a_reliable_publisher_back_at_most_ma
     assert stalled.wait_exit(timeout=TIMEOUT) == 0, stalled.output
     result = totals(stalled.output)
     assert int(result["gaps"]) > 0 and result["mismatches"] == "0", stalled.output
+
+
+def test_a_keep_last_subscriber_never_holds_a_reliable_keep_all_publisher_back(
+        domain_id: int, prefix: str, caplog: pytest.LogCaptureFixture) -> None:
+    """A subscriber that keeps only the newest sample (the samples before it overwritten in its queue) acknowledges
+    those it never got, as a DDS reader acknowledges what its history replaced: the publisher's window of 8 never
+    fills with them, so it never waits (which would end in its "no sample consumed" warning after 1 s)."""
+    memory = SharedMemory("test", domain_id, "KeepLast", prefix)
+    writer_qos = Qos(Policy.Reliability.Reliable(10**9), Policy.History.KeepAll,
+                     Policy.ResourceLimits(max_samples=8, max_instances=1, max_samples_per_instance=8))
+    writer = SharedWriter(memory, 8, writer_qos, lambda: True)
+    reader = SharedReader(memory, Qos(Policy.History.KeepLast(1)))
+    newest: list[int] = []
+
+    def fill(view: memoryview) -> int:
+        view[:] = bytes(8)
+        return 1
+    try:
+        with caplog.at_level(logging.WARNING):
+            for number in range(1, 41):
+                writer.publish(8, fill)
+                if number % 5 == 0:  # every fifth: only the newest is still queued
+                    with reader.take() as samples:
+                        newest.extend(sample.sequence for sample in samples)
+        assert newest == [5, 10, 15, 20, 25, 30, 35, 40]
+        assert "no sample consumed" not in caplog.text
+    finally:
+        writer.close()
+        reader.close()
+        memory.close()
 
 
 def test_frames_are_read_only_views_of_shared_memory_that_end_with_their_block(domain_id: int, prefix: str) -> None:

@@ -509,6 +509,7 @@ class SharedReader:
             self.notifier = memory.consumed.notifier_builder().create()
         self._waking: threading.Thread | None = None
         self._stop = threading.Event()
+        self._last_sequence: dict[str, int] = {}  # publisher -> the sequence of its last sample received
 
     def wake(self, guard: GuardCondition) -> None:
         """Set ``guard`` whenever samples were sent or a publisher leaves, from a thread of its own."""
@@ -533,6 +534,7 @@ class SharedReader:
                     break
                 held.append(sample)
                 header = sample.user_header().contents
+                self._acknowledge_skipped(repr(sample.header.publisher_id), int(header.sequence))
                 payload = sample.payload()
                 arrays.append((ctypes.c_char * payload.len()).from_address(payload.as_ptr()))
                 # read-only: a write through the view (or a numpy array made from it) raises instead of crashing
@@ -542,6 +544,21 @@ class SharedReader:
             self._release(samples, views, arrays, held)
             raise
         return LentShared(samples, lambda: self._release(samples, views, arrays, held))
+
+    def _acknowledge_skipped(self, publisher: str, sequence: int) -> None:
+        """Acknowledge the samples of ``publisher`` before ``sequence`` that this subscriber never got (overwritten in
+        its queue: keep-last, or a queue that overflowed), as a DDS reader acknowledges what its history replaced: a
+        reliable publisher's flow control then never waits for them."""
+        # Sequences start at 1. A subscriber that came later acknowledges a few samples sent before it was there:
+        # flow control is a little looser once, rather than waiting for acknowledgements that never come.
+        last = self._last_sequence.get(publisher, 0)
+        if len(self._last_sequence) >= MAX_SUBSCRIBERS * 2:  # publishers come and go: forget the old ones
+            self._last_sequence.clear()
+        self._last_sequence[publisher] = sequence
+        if sequence <= last + 1:  # the next one, or a restarted publisher
+            return
+        for skipped in range(max(last + 1, sequence - 2 * MAX_DEPTH), sequence):  # a window is never longer
+            self.notifier.notify_with_custom_event_id(iox2.EventId.new(skipped % ACK_IDS))
 
     def _release(self, samples: list[SharedSample], views: list[memoryview],
                  arrays: list[ctypes.Array[ctypes.c_char]], held: list[Any]) -> None:
