@@ -156,13 +156,18 @@ def test_the_hmi_warns_without_an_alert_writer_is_ok_with_one_and_errs_when_it_i
 
 
 def test_a_recording_holds_every_programs_diagnostics_for_rosbags_mcap_and_foxglove(  # type: ignore[no-untyped-def]
-        apps, domain_id: int, tmp_path: Path) -> None:
+        apps, domain_id: int, tmp_path: Path, diagnostics: DiagnosticsReader) -> None:
     recording = tmp_path / "health.mcap"
     recorder = apps.start("record", "--domain", str(domain_id), "--output", str(recording),
                           "--topics", "rt/diagnostics")
     recorder.wait_for(r"recording 1 topic", timeout=TIMEOUT)
     apps.start("vehicle_platform", "--domain", str(domain_id))
     recorder.wait_for(r"\[rt/diagnostics\] reader matched a writer", count=2, timeout=TIMEOUT)  # its own, the app's
+    # The application's statuses, as a reader beside the recorder sees them: its second was written after the
+    # recorder had matched, and the recorder has the first by then (the recorder's own count alone may come from its
+    # own statuses before the application says anything on a loaded machine).
+    for seen in (1, 2):
+        diagnostics.status_of("vehicle_platform", what=f"(status {seen})")
     recorder.wait_for(r" rt/diagnostics=([4-9]|\d\d+)/", timeout=TIMEOUT)
     assert recorder.stop(signal.SIGINT) == 0, recorder.output[-3000:]
 
