@@ -313,13 +313,14 @@ def body(app: Application, ui: AlertUI, why_console: str) -> None:
             if change is SourceChange.FOUND:
                 app.log.log(shown_level, "alert source found: a live alert writer matched")  # the box says it too
             elif change is SourceChange.LOST:
-                app.log.warning("alert source LOST: %s", source.lost_reason)
-                # what the driver is told: lost (why: a writer that left cleanly, at a shutdown, counts too), or back
+                # what the driver is told: lost (why: a writer that left cleanly, at a shutdown, counts too), or back;
+                # recorded before it is said, so that whoever reads the line finds the record
                 app.stats.record("source", alive=False, reason=source.lost_reason)
+                app.log.warning("alert source LOST: %s", source.lost_reason)
             elif change is SourceChange.BACK:
+                app.stats.record("source", alive=True)
                 app.log.info("alert source back: the alert writer's liveliness was regained%s",
                              "" if source.texts is not None else " (a new writer: no alert state from it yet)")
-                app.stats.record("source", alive=True)
         taken = alerts.take(N=100)
         taken_ns = time.time_ns()
         for alert in taken:
