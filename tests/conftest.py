@@ -112,6 +112,12 @@ def domain_id() -> int:
     return _next_domain_id()
 
 
+@pytest.fixture
+def other_domain_id(domain_id: int) -> int:
+    """A second domain id of the test's own, for a test that runs two systems apart."""
+    return _next_domain_id()
+
+
 @pytest.fixture(scope="module")
 def module_domain_id() -> Iterator[int]:
     """A domain id of its own for a module whose tests share one running system: no other test gets it meanwhile."""

@@ -239,6 +239,48 @@ def test_list_into_a_pipe_nobody_reads_ends_quietly() -> None:
     assert result.returncode == 0 and result.stderr == "", result.stderr
 
 
+def test_stop_and_status_find_the_launchers_from_any_folder(apps: AppRunner, domain_id: int, other_domain_id: int,
+                                                           tmp_path: Path) -> None:
+    """Issue 38: `launch stop` and `status` typed in another folder, without --log-dir, find the user's running
+    launchers (a per-user runtime folder); two running: status lists both, stop asks which, --domain chooses."""
+    env = {"XDG_RUNTIME_DIR": str(tmp_path / "runtime")}
+    (tmp_path / "runtime").mkdir()
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+
+    def command(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([*LAUNCH, *args], capture_output=True, text=True, cwd=elsewhere,
+                              env={**os.environ, **env}, timeout=STOP_TIMEOUT + 30)
+
+    first = launch(apps, domain_id, tmp_path / "one", "vision", env=env)
+    started_pids(first)
+    first.wait_for(r"`automotive launch stop` stops them")  # the only launcher: the plain command
+    status = command("status")
+    assert status.returncode == 0, status.stdout + status.stderr
+    assert f"domain {domain_id}, logs in {tmp_path / 'one'}" in status.stdout and "vision" in status.stdout
+
+    second = launch(apps, other_domain_id, tmp_path / "two", "vision", env=env)
+    started_pids(second)
+    second.wait_for(rf"`automotive launch stop --log-dir {re.escape(str(tmp_path / 'two'))}` stops them")
+    status = command("status")
+    assert status.stdout.count("launcher pid") == 2, status.stdout
+    ambiguous = command("stop")
+    assert ambiguous.returncode == 2 and ambiguous.stderr.count("\n") == 1, ambiguous.stderr
+    assert "2 launchers are running" in ambiguous.stderr and "--domain" in ambiguous.stderr
+
+    stopped = command("stop", "--domain", str(other_domain_id))
+    assert stopped.returncode == 0, stopped.stdout + stopped.stderr
+    assert f"domain {other_domain_id}, logs in {tmp_path / 'two'}" in stopped.stdout.splitlines()[0]
+    assert second.wait_exit(timeout=10) == 0
+    assert first.poll() is None
+    stopped = command("stop")  # one left: no choice needed
+    assert stopped.returncode == 0 and f"domain {domain_id}" in stopped.stdout, stopped.stdout + stopped.stderr
+    assert first.wait_exit(timeout=10) == 0
+    gone = command("status")
+    assert gone.returncode == 1 and "no launcher of yours is running" in gone.stdout
+    assert not list((tmp_path / "runtime").rglob("launcher-*.json"))
+
+
 def test_stop_without_a_launcher_says_so(tmp_path: Path) -> None:
     result = subprocess.run([*LAUNCH, "stop", "--log-dir", str(tmp_path)], capture_output=True,
                             text=True, timeout=20)

@@ -49,6 +49,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -451,12 +452,84 @@ def launcher_running(info: dict[str, object]) -> int | None:
     return None
 
 
+# -- the user's running launchers: how `launch stop` and `status` find one from any folder ---------------------------
+# Each launcher also leaves a small file in a folder of this user's (one per launcher: its pid, log folder and
+# domain), so that `stop` and `status` find it wherever they are typed; the pid file in the log folder stays the
+# record of its applications.
+def runtime_folder() -> Path:
+    """This user's folder of running launchers: $XDG_RUNTIME_DIR/automotive (the session's, private), else
+    /tmp/automotive-<uid>."""
+    base = os.environ.get("XDG_RUNTIME_DIR", "")
+    if base and Path(base).is_dir():
+        return Path(base) / "automotive"
+    return Path(tempfile.gettempdir()) / f"automotive-{os.getuid()}"
+
+
+@dataclass
+class RegisteredLauncher:
+    pid: int
+    log_dir: Path
+    domain: int
+    entry: Path  # its file in the runtime folder
+
+    def describe(self) -> str:
+        return f"pid {self.pid}, domain {self.domain}, logs in {self.log_dir}"
+
+
+def register_launcher(log_dir: Path, domain: int) -> Path | None:
+    """Enter this launcher in the user's runtime folder; None (and no entry) when the folder cannot be written: the
+    launcher runs all the same, `stop --log-dir` still finds it."""
+    folder = runtime_folder()
+    entry = folder / f"launcher-{os.getpid()}.json"
+    try:
+        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+        temporary = folder / f".{entry.name}.tmp"
+        temporary.write_text(json.dumps({"launcher": os.getpid(), "log_dir": str(log_dir), "domain": domain}))
+        temporary.replace(entry)
+    except OSError:
+        return None
+    return entry
+
+
+def registered_launchers() -> list[RegisteredLauncher]:
+    """The user's registered launchers whose log folder's pid file still names them; entries of launchers that are
+    gone and left no applications are removed."""
+    found: list[RegisteredLauncher] = []
+    for entry in sorted(runtime_folder().glob("launcher-*.json")):
+        try:
+            data = json.loads(entry.read_text())
+            launcher = RegisteredLauncher(int(data["launcher"]), Path(data["log_dir"]), int(data["domain"]), entry)
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        info = read_pid_file(launcher.log_dir)
+        if info is None or info.get("launcher") != launcher.pid or (
+                launcher_running(info) is None and not app_pids(info)):
+            entry.unlink(missing_ok=True)
+            continue
+        found.append(launcher)
+    return found
+
+
+def launch_domain(args: argparse.Namespace) -> int:
+    """The domain the launcher's applications run on: --domain, else a -D config.domainId for every application,
+    else the shipped properties' 0."""
+    if args.domain is not None:
+        return int(args.domain)
+    for item in reversed(args.overrides):
+        match = re.fullmatch(r"config\.domainId=(\d+)", item.strip())
+        if match:
+            return int(match.group(1))
+    return 0
+
+
 # -- the supervisor -------------------------------------------------------------------------------------------------
 class Supervisor:
     def __init__(self, specs: list[AppSpec], log_dir: Path, stop_timeout: float, console: Console, views: Views,
-                 mode: str):
+                 mode: str, domain: int = 0):
         self.specs = specs
         self.log_dir = log_dir
+        self.domain = domain
+        self.registry_entry: Path | None = None  # this launcher's file in the user's runtime folder
         self.stop_timeout = stop_timeout
         self.console = console
         self.views = views
@@ -488,11 +561,16 @@ class Supervisor:
         temporary = self.log_dir / f".{PID_FILE}.{os.getpid()}"
         temporary.write_text(json.dumps(info))
         temporary.replace(self.log_dir / PID_FILE)
+        if self.registry_entry is None:
+            self.registry_entry = register_launcher(self.log_dir, self.domain)
 
     def remove_pid_file(self) -> None:
         info = read_pid_file(self.log_dir)
         if info is not None and info.get("launcher") == os.getpid():
             (self.log_dir / PID_FILE).unlink(missing_ok=True)
+        if self.registry_entry is not None:
+            self.registry_entry.unlink(missing_ok=True)
+            self.registry_entry = None
 
     def start_all(self) -> None:
         # Every line, every sample included, goes to the log files; the console leaves the DEBUG lines out unless -v.
@@ -649,7 +727,7 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
     elif args.tmux_session:
         views = TmuxViews(args.tmux_session, console)
     supervisor = Supervisor(specs, log_dir, args.stop_timeout, console, views,
-                            "tmux" if args.tmux_session else mode)
+                            "tmux" if args.tmux_session else mode, launch_domain(args))
     supervisor.missing = missing
     dump_stacks_on_request()
     on_signals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), supervisor.on_signal)
@@ -659,7 +737,7 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
         supervisor.start_all()
         if supervisor.apps:
             console.say(f"{len(supervisor.apps)} application(s) running ({mode} mode), logs in {log_dir}; "
-                        f"Ctrl-C or `{PROG} stop` stops them")
+                        f"Ctrl-C or `{stop_hint(log_dir)}` stops them")
             supervisor.watch()
     finally:
         supervisor.stop_all()
@@ -753,16 +831,64 @@ def app_pids(info: dict[str, object]) -> dict[str, int]:
             and children.program_module(str(modules.get(name))) in pid_cmdline(pid)}
 
 
+def stop_hint(log_dir: Path) -> str:
+    """The command that stops the launcher of ``log_dir`` from any folder: plain while it is the user's only one."""
+    others = [launcher for launcher in registered_launchers() if launcher.pid != os.getpid()]
+    return f"{PROG} stop" + (f" --log-dir {shlex.quote(str(log_dir))}" if others else "")
+
+
+def add_choice_options(parser: argparse.ArgumentParser) -> None:
+    add_log_dir_option(parser, None, "the launcher whose logs are in this folder (its --log-dir)")
+    add_domain_option(parser, help="the launcher running on this domain")
+
+
+def chosen_launchers(args: argparse.Namespace) -> list[tuple[Path, dict[str, object]]]:
+    """The launchers (log folder, pid file) that ``--log-dir`` or ``--domain`` name, or all of this user's."""
+    if args.log_dir is not None:
+        info = read_pid_file(args.log_dir)
+        return [] if info is None else [(args.log_dir, info)]
+    chosen = []
+    for launcher in registered_launchers():
+        info = read_pid_file(launcher.log_dir)
+        if info is not None and (args.domain is None or launcher.domain == args.domain):
+            chosen.append((launcher.log_dir, {**info, "domain": launcher.domain}))
+    if not chosen and args.domain is None:  # a launcher of a version that did not register: the current folder's
+        info = read_pid_file(DEFAULT_LOG_DIR)
+        if info is not None:
+            chosen.append((DEFAULT_LOG_DIR.resolve(), info))
+    return chosen
+
+
+def describe_launcher(log_dir: Path, info: dict[str, object]) -> str:
+    domain = info.get("domain")
+    return f"pid {info.get('launcher')}" + (f", domain {domain}" if domain is not None else "") + f", logs in {log_dir}"
+
+
+def no_launcher(args: argparse.Namespace) -> str:
+    if args.log_dir is not None:
+        return f"no launcher is running with its logs in {args.log_dir} (no {args.log_dir / PID_FILE})"
+    if args.domain is not None:
+        return f"no launcher of yours is running on domain {args.domain}"
+    return "no launcher of yours is running"
+
+
 def stop_command(argv: list[str]) -> int:
-    parser = ArgumentParser(prog=f"{PROG} stop", description="Stop the running launcher.")
-    add_log_dir_option(parser, DEFAULT_LOG_DIR, "the launcher's --log-dir")
+    parser = ArgumentParser(prog=f"{PROG} stop", description="Stop the running launcher (found from any folder; "
+                                                             "--log-dir or --domain choose one of several).")
+    add_choice_options(parser)
     parser.add_argument("--timeout", type=float, default=None,
                         help=f"how long to wait for the launcher (default: its stop timeout + {STOP_MARGIN_S:g} s)")
     args = parser.parse_args(argv)
-    info = read_pid_file(args.log_dir)
-    if info is None:
-        print(f"{PROG} stop: no launcher is running (no {args.log_dir / PID_FILE})", file=sys.stderr)
+    chosen = chosen_launchers(args)
+    if not chosen:
+        print(f"{PROG} stop: {no_launcher(args)}", file=sys.stderr)
         return 1
+    if len(chosen) > 1:
+        listed = "; ".join(describe_launcher(log_dir, info) for log_dir, info in chosen)
+        print(f"{PROG} stop: {len(chosen)} launchers are running ({listed}): choose one with --domain N or "
+              "--log-dir DIR", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    log_dir, info = chosen[0]
     launcher = launcher_running(info)
     if launcher is None:  # the launcher died without cleaning up: end what it left behind
         leftovers = app_pids(info)
@@ -771,12 +897,13 @@ def stop_command(argv: list[str]) -> int:
             print(f"launch stop: the launcher had died; killed its leftover {name} (pid {pid})")
         if not leftovers:
             print("launch stop: no launcher is running (stale pid file removed)")
-        (args.log_dir / PID_FILE).unlink(missing_ok=True)
+        (log_dir / PID_FILE).unlink(missing_ok=True)
+        registered_launchers()  # drops the dead launcher's entry
         return 0
     stop_timeout = info.get("stop_timeout")
     timeout = args.timeout if args.timeout is not None else (
         float(stop_timeout) if isinstance(stop_timeout, (int, float)) else DEFAULT_STOP_TIMEOUT) + STOP_MARGIN_S
-    print(f"launch stop: stopping the launcher (pid {launcher})")
+    print(f"launch stop: stopping the launcher ({describe_launcher(log_dir, info)})")
     os.kill(launcher, signal.SIGTERM)
     deadline = time.monotonic() + timeout
     while pid_alive(launcher) and time.monotonic() < deadline:
@@ -791,28 +918,30 @@ def stop_command(argv: list[str]) -> int:
             print(f"launch stop: killed {name} (pid {pid})")
         os.kill(launcher, signal.SIGKILL)
         print("launch stop: killed the launcher")
-        (args.log_dir / PID_FILE).unlink(missing_ok=True)
+        (log_dir / PID_FILE).unlink(missing_ok=True)
+        registered_launchers()
         return 1
-    summary = args.log_dir / SUMMARY_FILE
+    summary = log_dir / SUMMARY_FILE
     if summary.is_file():
         print(summary.read_text(), end="")
     return 0
 
 
 def status_command(argv: list[str]) -> int:
-    parser = ArgumentParser(prog=f"{PROG} status", description="What the running launcher runs.")
-    add_log_dir_option(parser, DEFAULT_LOG_DIR, "the launcher's --log-dir")
+    parser = ArgumentParser(prog=f"{PROG} status", description="What the running launchers run (found from any "
+                                                               "folder; --log-dir or --domain choose one).")
+    add_choice_options(parser)
     args = parser.parse_args(argv)
-    info = read_pid_file(args.log_dir)
-    launcher = launcher_running(info) if info is not None else None
-    if info is None or launcher is None:
-        print("launch status: no launcher is running")
+    running = [(log_dir, info) for log_dir, info in chosen_launchers(args) if launcher_running(info) is not None]
+    if not running:
+        print(f"launch status: {no_launcher(args)}")
         return 1
-    alive = app_pids(info)
-    print(f"launcher pid {launcher}, {info.get('mode')} mode, logs in {args.log_dir}")
-    apps = info.get("apps")
-    for name, pid in (apps.items() if isinstance(apps, dict) else []):
-        print(f"  {name:<20} pid {pid:<7} {'running' if name in alive else 'ended'}")
+    for log_dir, info in running:
+        print(f"launcher {describe_launcher(log_dir, info)}, {info.get('mode')} mode")
+        alive = app_pids(info)
+        apps = info.get("apps")
+        for name, pid in (apps.items() if isinstance(apps, dict) else []):
+            print(f"  {name:<20} pid {pid:<7} {'running' if name in alive else 'ended'}")
     return 0
 
 
