@@ -4,9 +4,14 @@ applications are console scripts."""
 
 from __future__ import annotations
 
+import importlib
 import importlib.metadata
+import os
+import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import pytest
 from apprunner import DEFAULT_SIGINT, signal_state
@@ -15,8 +20,7 @@ from automotive import command
 from automotive.bus.version import DISTRIBUTION
 
 AUTOMOTIVE = [sys.executable, "-m", "automotive"]
-APPLICATION_SCRIPTS = {f"automotive-{name.replace('_', '-')}": f"{module.module}:main"
-                       for name, module in command.APPS.items()}
+APPLICATION_SCRIPTS = {f"automotive-{name.replace('_', '-')}": f"automotive.start:{name}" for name in command.APPS}
 EVERY_COMMAND = ([[name] for name in command.TOOLS] + [["run", name] for name in command.APPS]
                  + [["bench", name] for name in command.BENCHMARKS])
 
@@ -28,7 +32,10 @@ def automotive(*args: str) -> subprocess.CompletedProcess[str]:
 def test_the_console_scripts_are_automotive_and_the_eight_applications() -> None:
     scripts = {entry.name: entry.value for entry in importlib.metadata.distribution(DISTRIBUTION).entry_points
                if entry.group == "console_scripts"}
-    assert scripts == {"automotive": "automotive.command:main", **APPLICATION_SCRIPTS}
+    assert scripts == {"automotive": "automotive.start:automotive", **APPLICATION_SCRIPTS}
+    for name, value in scripts.items():  # each names a program that exists
+        module, function = value.split(":")
+        assert callable(getattr(importlib.import_module(module), function)), name
 
 
 def test_help_lists_every_command() -> None:
@@ -95,3 +102,75 @@ def test_ctrl_c_ends_a_benchmark_without_a_traceback(domain_id: int) -> None:
     process.send_signal(signal.SIGINT)
     _, errors = process.communicate(timeout=60)
     assert process.returncode == 130 and "Traceback" not in errors, f"{errors} (signals when sent: {state})"
+
+
+SCRIPTS = Path(sys.executable).parent  # the console scripts of this installation
+
+
+def catches(pid: int, sig: int) -> bool:
+    """Whether the process has a handler of its own for ``sig`` (its SigCgt mask in /proc)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    caught = next(line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:"))
+    return bool(int(caught, 16) >> (sig - 1) & 1)
+
+
+def wait_until_caught(process: subprocess.Popen[str], sig: int = signal.SIGTERM) -> None:
+    """Until the program's entry (automotive.start) handles SIGTERM: from then on it is still importing for a second
+    or more, and no signal may end it with a traceback or without a word."""
+    deadline = time.monotonic() + 30
+    while not catches(process.pid, sig):
+        assert process.poll() is None, f"it ended first: {process.communicate()}"
+        assert time.monotonic() < deadline, "the entry never handled SIGTERM"
+        time.sleep(0.001)  # polling /proc: nothing to wait on
+
+
+@pytest.mark.parametrize(("command_line", "name"), [
+    (["automotive-vision"], "automotive-vision"),
+    (["automotive", "record", "-o", "{tmp}/drive.mcap"], "automotive"),
+    (["automotive", "launch", "--log-dir", "{tmp}/logs"], "automotive"),
+], ids=["vision", "record", "launch"])
+@pytest.mark.parametrize(("sig", "code", "said"), [(signal.SIGINT, 130, "Ctrl-C"), (signal.SIGTERM, 0, "SIGTERM")],
+                         ids=["SIGINT", "SIGTERM"])
+def test_a_signal_while_a_program_starts_ends_it_with_one_line(command_line: list[str], name: str, sig: int, code: int,
+                                                               said: str, tmp_path: Path, domain_id: int) -> None:
+    """Issue 38: Ctrl-C or SIGTERM while the program still imports: one line, exit code 130 or 0, no traceback."""
+    args = [str(SCRIPTS / command_line[0]), *(item.format(tmp=tmp_path) for item in command_line[1:])]
+    process = subprocess.Popen([*DEFAULT_SIGINT, *args, "--domain", str(domain_id)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    wait_until_caught(process)
+    process.send_signal(sig)
+    out, errors = process.communicate(timeout=60)
+    assert process.returncode == code, f"{process.returncode}: {out} {errors}"
+    assert errors == f"{name}: stopped ({said})\n", errors
+    assert "Traceback" not in out
+
+
+def test_a_launcher_stopped_while_its_applications_start_ends_cleanly(tmp_path: Path, domain_id: int) -> None:
+    """Issue 38: SIGTERM to a launcher whose applications are still importing: each ends on SIGTERM with exit code 0
+    (not "killed by SIGTERM"), and so does the launcher."""
+    process = subprocess.Popen([*DEFAULT_SIGINT, sys.executable, "-m", "automotive.start", "automotive.tools.launch",
+                                "--mode", "background", "--domain", str(domain_id), "--log-dir", str(tmp_path),
+                                "vision", "hmi"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                               env={**os.environ, "DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    assert process.stdout is not None
+    pids = []
+    for line in process.stdout:
+        if "started " in line and "(pid " in line:
+            pids.append(int(line.split("(pid ")[1].split(")")[0]))
+        if "application(s) running" in line:
+            break
+    assert len(pids) == 2, pids
+    for pid in pids:  # each application's entry handles SIGTERM (it is importing, or already running)
+        deadline = time.monotonic() + 30
+        while not catches(pid, signal.SIGTERM):
+            assert time.monotonic() < deadline, f"pid {pid} never handled SIGTERM"
+            time.sleep(0.001)
+    process.send_signal(signal.SIGTERM)
+    out, _ = process.communicate(timeout=60)
+    assert process.returncode == 0, out
+    summary = out.split("how each application ended:")[1]
+    assert summary.count("stopped on SIGTERM, exit code 0") == 2, out
+    assert "Traceback" not in out and "killed" not in out, out

@@ -2,6 +2,6 @@
 
 import sys
 
-from automotive.command import main
+from automotive.start import automotive
 
-sys.exit(main())
+sys.exit(automotive())

@@ -41,6 +41,7 @@ from automotive import config, cyclone
 from automotive.bus import badsamples, console, cyclonelog, diagnostics, memtune
 from automotive.bus.cli import (
     EXIT_BAD_INPUT,
+    EXIT_INTERRUPTED,
     ArgumentParser,
     add_domain_option,
     add_network_options,
@@ -390,11 +391,14 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
     dump_stacks_on_request()  # SIGUSR1: where each thread is (the launcher asks before it kills a hung application)
     start_memory_probe(name)  # a diagnostic, only with AUTOMOTIVE_MEMTRACE set (automotive.bus.memtrace)
 
+    stopped_while_starting: list[int] = []  # the signal that ended the set-up
+
     def stop_when_built(signum: int, frame: FrameType | None) -> None:
         # In the main thread, between two bytecodes: lock-free. Before the application exists nothing else stops the
         # set-up; once it exists, the signal thread stops it (stop_app), and the flag covers a signal that thread
         # served just before ``app`` was assigned.
         if app is None:
+            stopped_while_starting.append(signum)
             raise KeyboardInterrupt
         app.stop_signalled = True
 
@@ -420,6 +424,9 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
         print(f"{parser.prog}: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
+        if app is None:  # stopped while starting: one line; Ctrl-C says so in the exit code, SIGTERM ends cleanly
+            log.info("stopped while starting")
+            return EXIT_INTERRUPTED if stopped_while_starting[:1] != [signal.SIGTERM] else 0
         return 0
     finally:
         if app is not None:

@@ -32,6 +32,7 @@ from typing import Any, NoReturn
 from automotive.bus import ports
 
 EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130  # Ctrl-C before the program was running: the shell's code for "ended by SIGINT"
 NETWORK_MODES = ("loopback", "lan", "peers")
 MAX_DOMAIN_ID = ports.MAX_DOMAIN_ID  # 231: the highest whose RTPS ports fit in 16 bits (automotive.bus.ports)
 DUMP_STACKS_SIGNAL = signal.SIGUSR1

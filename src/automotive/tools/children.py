@@ -59,8 +59,9 @@ def program_module(name: str) -> str:
 
 
 def program_command(name: str, *args: str, python: Sequence[str] = ()) -> list[str]:
-    """``[python, -m, module, args...]`` with the running interpreter (``python``: a prefix such as ``chrt``)."""
-    return [*python, sys.executable, "-m", program_module(name), *args]
+    """``[python, -m, automotive.start, module, args...]`` with the running interpreter (``python``: a prefix such as
+    ``chrt``): started through automotive.start, a program stopped while it still imports ends with one line."""
+    return [*python, sys.executable, "-m", "automotive.start", program_module(name), *args]
 
 
 def _exit_as_signalled(signum: int, frame: FrameType | None) -> None:

@@ -789,8 +789,8 @@ def run_in_tmux(args: argparse.Namespace, argv: list[str]) -> int:
     if subprocess.run(["tmux", "has-session", "-t", f"={session}"], capture_output=True).returncode == 0:
         raise LaunchError(f"tmux session '{session}' already exists: `tmux attach -t {session}` to see it, "
                           f"`{PROG} stop` to stop it")
-    inner = [sys.executable, "-m", "automotive.tools.launch", "--prog", PROG, *argv, "--mode", "background",
-             "--log-dir", str(args.log_dir), "--tmux-session", session]
+    inner = [sys.executable, "-m", "automotive.start", "automotive.tools.launch", "--prog", PROG, *argv,
+             "--mode", "background", "--log-dir", str(args.log_dir), "--tmux-session", session]
     # A running tmux server starts new sessions with its own environment: hand over what the applications need.
     passed = {key: os.environ[key] for key in ("CYCLONEDDS_URI", "DISPLAY", "WAYLAND_DISPLAY", "XAUTHORITY",
                                                "PYTHONPATH", "PATH", "NO_COLOR") if key in os.environ}

@@ -1,0 +1,90 @@
+"""How every program of the package starts, so that Ctrl-C or SIGTERM at any moment ends it with one line.
+
+Importing a program (Cyclone DDS, numpy, the generated types) takes a second or more. A signal in that second used to
+end it with a traceback of the import (Ctrl-C) or with no word at all (SIGTERM's default action). The console scripts
+(``automotive``, ``automotive-vision`` ...) and ``python -m automotive.start MODULE ARGS`` (how the launcher, the
+benchmarks and the tests start a program) import the program and run its ``main(argv)`` here, and this module imports
+nothing of the package:
+
+- while the program imports, Ctrl-C and SIGTERM end it at once with one line on stderr, exit code 130 (Ctrl-C) or 0
+  (SIGTERM, as a program stopped after its start-up ends). At once, not by raising: an exception raised by a signal
+  handler inside an import can be swallowed by C code that clears errors of optional imports (seen here: about one
+  SIGTERM in three was lost that way), and nothing needs cleaning up before the program has run;
+- once it runs, Ctrl-C raises KeyboardInterrupt (Python's own handler) and SIGTERM raises :class:`Stopped` in the
+  main thread, so that ``finally`` blocks stop children and remove files; either ends with one line.
+
+A program that installs handlers of its own (automotive.bus.app.run, the launcher) replaces these once it is running.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import signal
+import sys
+from collections.abc import Callable
+from types import FrameType
+from typing import Any, cast
+
+EXIT_INTERRUPTED = 130  # the shell's code for "ended by SIGINT"
+
+
+class Stopped(BaseException):
+    """SIGTERM arrived while no handler of the program's own was in place (a BaseException: no ``except Exception``
+    of the program swallows it)."""
+
+
+def _raise_stopped(signum: int, frame: FrameType | None) -> None:
+    raise Stopped(signum)
+
+
+def _say(name: str, signum: int) -> None:
+    print(f"{name}: stopped ({'Ctrl-C' if signum == signal.SIGINT else 'SIGTERM'})", file=sys.stderr, flush=True)
+
+
+def start(module: str, name: str, argv: list[str] | None = None) -> int:
+    """Import ``module`` and return its ``main(argv)``; ``name`` is the command the user typed, for the one line."""
+    def end_now(signum: int, frame: FrameType | None) -> None:
+        _say(name, signum)
+        os._exit(EXIT_INTERRUPTED if signum == signal.SIGINT else 0)
+
+    # A signal the parent told this process to ignore (SIG_IGN) stays ignored.
+    handled = [sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) != signal.SIG_IGN]
+    previous: dict[int, Any] = {sig: signal.signal(sig, end_now) for sig in handled}
+    try:
+        main = cast(Callable[[list[str] | None], int], importlib.import_module(module).main)
+        for sig in handled:  # running: signals unwind the program
+            signal.signal(sig, _raise_stopped if sig == signal.SIGTERM else previous[sig])
+        return main(argv)
+    except KeyboardInterrupt:
+        _say(name, signal.SIGINT)
+        return EXIT_INTERRUPTED
+    except Stopped:
+        _say(name, signal.SIGTERM)
+        return 0
+
+
+def _script(module: str, name: str) -> Callable[[], int]:
+    return lambda: start(module, name)
+
+
+# The console scripts (pyproject.toml's [project.scripts]).
+automotive = _script("automotive.command", "automotive")
+vision = _script("automotive.apps.vision", "automotive-vision")
+lidar = _script("automotive.apps.lidar", "automotive-lidar")
+sensor_fusion = _script("automotive.apps.sensor_fusion", "automotive-sensor-fusion")
+collision_avoidance = _script("automotive.apps.collision_avoidance", "automotive-collision-avoidance")
+vehicle_platform = _script("automotive.apps.vehicle_platform", "automotive-vehicle-platform")
+hmi = _script("automotive.apps.hmi", "automotive-hmi")
+camera_pub = _script("automotive.apps.camera_pub", "automotive-camera-pub")
+camera_sub = _script("automotive.apps.camera_sub", "automotive-camera-sub")
+
+
+if __name__ == "__main__":  # python -m automotive.start MODULE ARGS...
+    if len(sys.argv) < 2:
+        print("usage: python -m automotive.start MODULE [ARGS...]", file=sys.stderr)
+        sys.exit(2)
+    target, program = sys.argv[1], sys.argv[1].rsplit(".", 1)[-1]
+    command = (f"automotive-{program.replace('_', '-')}" if target.startswith("automotive.apps.")
+               else f"automotive {program.replace('_', '-')}")
+    sys.exit(start(target, command, sys.argv[2:]))
