@@ -50,6 +50,7 @@ FILES = [
     Case(tuple(program_command("record", "--domain", "231")), "--output", "drive.mcap"),
     Case(tuple(program_command("camera_sub", "--domain", "231")), "--plot", "latency.png"),
     Case(tuple(program_command("vision", "--domain", "231")), "--stats", "vision.jsonl", ("--count", "1")),
+    Case(tuple(program_command("lidar_view", "--domain", "231")), "--snapshot", "cloud.png"),
     Case(bench("soak"), "--chart", "soak.png"),
     Case(bench("soak"), "--samples", "samples.jsonl"),
     Case(bench("alert_latency"), "--png", "latency.png"),

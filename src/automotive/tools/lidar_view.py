@@ -47,7 +47,7 @@ from automotive.bus import badsamples
 from automotive.bus.app import Application, build_parser, run
 from automotive.bus.badsamples import BadSample
 from automotive.bus.checkedreader import CheckedReader
-from automotive.bus.cli import EXIT_BAD_INPUT
+from automotive.bus.cli import EXIT_BAD_INPUT, output_file
 from automotive.bus.display import NoWindow, open_pygame_display, open_window
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
@@ -141,7 +141,7 @@ def make_window(app: Application, display: Display, size: tuple[int, int],
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--snapshot", type=Path, default=None, metavar="FILE",
+    parser.add_argument("--snapshot", type=output_file, default=None, metavar="FILE",
                         help="write a PNG of the first cloud (the Nth with --count N) and exit")
     parser.add_argument("--timeout", type=float, default=0.0, metavar="S",
                         help="with --snapshot: give up (exit 2) if no cloud came within S seconds (0: wait forever)")
@@ -339,8 +339,6 @@ def body(app: Application, display: Display) -> None:
     timeout_s: float = app.args.timeout
     if timeout_s < 0:
         raise ConfigError(f"--timeout {timeout_s:g}: expected 0 (wait forever) or a number of seconds")
-    if snapshot is not None and not snapshot.parent.is_dir():
-        raise ConfigError(f"--snapshot {snapshot}: folder {snapshot.parent} does not exist")
     # Count clouds for the snapshot ourselves: the runtime's --count would stop the loop before the picture.
     wanted = max(app.count, 1) if snapshot is not None else 0
     if snapshot is not None:
@@ -389,7 +387,10 @@ def view(app: Application, display: Display, flow: FlowReader, settings: Setting
             status = status_line(picture.number, picture.cloud, intake.rate.per_second())
             if snapshot is not None:
                 figure = CloudFigure(size, settings.point_radius, title)
-                figure.save_png(figure.render(picture.xyz, picture.rgb, status), snapshot)
+                try:
+                    figure.save_png(figure.render(picture.xyz, picture.rgb, status), snapshot)
+                except OSError as error:  # checked at start, but a folder can turn read-only or full since
+                    raise ConfigError(f"--snapshot {snapshot}: cannot write it ({error.strerror or error})") from None
                 app.log.info("snapshot of cloud %d written to %s (%dx%d): %s", picture.number, snapshot, *size,
                              describe(picture.cloud))
                 app.stop()
