@@ -9,6 +9,7 @@ import re
 import shutil
 import signal
 import struct
+import subprocess
 import time
 from pathlib import Path
 from typing import Any
@@ -182,6 +183,33 @@ def test_a_killed_recorder_leaves_a_readable_file(apps, bus: Databus, domain_id:
         except (McapError, EOFError):
             pass  # the tail after the last complete record
     assert recorded == list(numbers)
+
+    # Issue 38: the usual readers want the file's end; `automotive record --recover` writes a copy they all read.
+    copy = tmp_path / "killed.recovered.mcap"
+    recovered = subprocess.run([*program_command("record"), "--recover", str(output)], capture_output=True,
+                               text=True, timeout=60)
+    assert recovered.returncode == 0 and recovered.stderr == "", recovered.stderr
+    assert recovered.stdout == (f"{output}: 20 message(s) of 1 topic(s) (AlertTopic=20) copied to {copy}; its "
+                                f"unfinished end left out ({recovered.stdout.split('left out (')[1]}"), recovered.stdout
+    assert copy.read_bytes().endswith(MCAP_MAGIC)
+    with open(copy, "rb") as stream:
+        assert [number_of(DriverAlerts.deserialize(message.data))
+                for _, _, message in make_reader(stream).iter_messages()] == list(numbers)
+    with AnyReader([copy]) as reader:
+        assert len(list(reader.messages())) == len(numbers)
+        assert next(c for c in reader.connections if c.topic == "AlertTopic").ext.offered_qos_profiles
+
+
+def test_recover_refuses_what_it_cannot_copy_in_one_line(tmp_path: Path) -> None:
+    not_mcap = tmp_path / "notes.mcap"
+    not_mcap.write_text("hello")
+    for args, message in [([str(tmp_path / "missing.mcap")], "no such file"),
+                          ([str(not_mcap)], "not an MCAP file"),
+                          ([str(not_mcap), "-o", str(not_mcap)], "is the recording itself")]:
+        result = subprocess.run([*program_command("record"), "--recover", *args], capture_output=True, text=True,
+                                timeout=60)
+        assert result.returncode == 2 and len(result.stderr.splitlines()) == 1, result.stderr
+        assert message in result.stderr and "Traceback" not in result.stderr
 
 
 @pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])

@@ -13,8 +13,8 @@ The file: MCAP profile ``ros2``, one channel per topic, message encoding ``cdr``
 (encapsulation header included); log time = reception, publish time = the writer's source timestamp; disposals and
 unregistrations on channels ``<topic>/dispose`` and ``<topic>/unregister`` (a sample carrying the instance's key).
 A sample that finds the queue full is counted as lost, never dropped silently. A status line every second; Ctrl-C,
-SIGTERM or --duration end the file properly (summary and index); a recorder killed outright leaves a file that
-readers read up to its last complete chunk.
+SIGTERM or --duration end the file properly (summary and index); a recorder killed outright leaves a file without
+its end, which ``automotive record --recover FILE`` copies into one that every reader reads.
 
 --output's folder is checked before anything starts. A write that fails later (a full disk, a quota, an I/O error)
 stops the recorder: the file is cut back to its last complete chunk and ended properly there, so that mcap's and
@@ -47,10 +47,11 @@ from mcap.records import Channel, ChunkIndex, DataEnd, Footer, McapRecord, Schem
 from mcap.writer import CompressionType, Writer
 
 from automotive.bus.app import Application, run
-from automotive.bus.cli import output_file
+from automotive.bus.cli import ArgumentParser, output_file
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
+from automotive.tools import mcap_recover
 from automotive.tools.flows import (
     Flow,
     FlowInput,
@@ -544,7 +545,45 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help="replace an existing file")
 
 
+def recover_command(argv: list[str]) -> int:
+    """``automotive record --recover FILE [-o COPY]``: a readable copy of a killed recorder's file."""
+    parser = ArgumentParser(prog="automotive record --recover", description=(
+        "Write a readable copy of a recording whose recorder was killed outright (SIGKILL, a power cut): every "
+        "message up to its last complete record, in a file that every MCAP reader reads."))
+    parser.add_argument("file", type=Path, help="the recording to recover (left as it is)")
+    parser.add_argument("--output", "-o", type=output_file, default=None,
+                        help="the copy to write (default: FILE with .recovered.mcap in place of .mcap)")
+    parser.add_argument("--overwrite", action="store_true", help="replace an existing copy")
+    args = parser.parse_args(argv)
+    source: Path = args.file
+    target: Path = args.output or source.with_name(source.name.removesuffix(".mcap") + ".recovered.mcap")
+    if not source.is_file():
+        parser.error(f"{source}: no such file")
+    if target.resolve() == source.resolve():
+        parser.error(f"--output {target}: is the recording itself; the copy must be another file")
+    if target.exists() and not args.overwrite:
+        parser.error(f"--output {target}: exists (--overwrite replaces it)")
+    try:
+        result = mcap_recover.recover(source, target)
+    except mcap_recover.NotRecoverable as error:
+        target.unlink(missing_ok=True)
+        parser.error(f"{source}: {error}")
+    except OSError as error:
+        print(f"automotive record --recover: {error.filename or target}: {error.strerror or error}", file=sys.stderr)
+        return 1
+    topics = ", ".join(f"{topic}={count}" for topic, count in result.messages.items())
+    state = ("it already ended properly" if result.complete
+             else f"its unfinished end left out ({result.problem})" if result.problem else "it had no end")
+    print(f"{source}: {result.total} message(s) of {len(result.messages)} topic(s)"
+          f"{' (' + topics + ')' if topics else ''} copied to {target}; {state}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--recover" in argv:
+        where = argv.index("--recover")
+        return recover_command(argv[:where] + argv[where + 1:])
     return run("record", __doc__ or "", body, argv, add_arguments, command="automotive record",
                keys=PROPERTY_KEYS)
 
