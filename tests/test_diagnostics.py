@@ -241,14 +241,16 @@ def test_an_unmatched_reader_warns_only_after_the_grace_and_unless_optional() ->
 
 def test_the_worst_comes_first_and_an_incompatible_qos_says_why_a_reader_has_no_writer() -> None:
     recent = [("AlertTopic", "requested_incompatible_qos",
-               "[AlertTopic] incompatible QoS requested from a writer: DURABILITY"),
+               "[AlertTopic] a writer was seen but does not match: incompatible QoS DURABILITY (this reader requests "
+               "TRANSIENT_LOCAL durability; the writer offers less)"),
               ("VisionTopic", "requested_deadline_missed",
                "[VisionTopic] requested deadline missed: no data in time (total 3)")]
     problems = assess([READER], set(), True, recent, ["[SensorObjects] liveliness LOST of a writer (0 alive, 1 not "
                                                       "alive)"], 2, Problem(ERROR, "alert source LOST: it left"))
     assert problems == [
         Problem(ERROR, "alert source LOST: it left"),
-        Problem(WARN, "[AlertTopic] reader: no writer matched (incompatible QoS requested from a writer: DURABILITY)"),
+        Problem(WARN, "[AlertTopic] reader: a writer was seen but does not match: incompatible QoS DURABILITY (this "
+                      "reader requests TRANSIENT_LOCAL durability; the writer offers less)"),
         Problem(WARN, "[SensorObjects] liveliness LOST of a writer (0 alive, 1 not alive)"),
         Problem(WARN, "[VisionTopic] requested deadline missed: no data in time (total 3)"),
         Problem(WARN, "2 bad sample(s) ignored in the last 5 s"),

@@ -43,6 +43,7 @@ from automotive.bus.diagnostics import ERROR, OK, Problem
 from automotive.bus.display import NoWindow, open_pygame_display, open_window
 from automotive.bus.ownership import OwnerTracker
 from automotive.bus.properties import PropertyKeys
+from automotive.bus.status import policy_name
 from automotive.types.Alerts import DriverAlerts
 
 # The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
@@ -75,6 +76,7 @@ WINDOW_TITLE_ALERT = Shown.ALERT.window_title
 class AlertView:
     shown: Shown
     texts: tuple[str, ...] = ()  # ALERT: the alerts; LOST: the alerts the source said last
+    mismatch: str = ""  # NO_SOURCE: the QoS policy of an alert writer that was seen but does not match
 
 
 SOURCE_LINES = {
@@ -90,6 +92,8 @@ def box_lines(view: AlertView) -> list[str]:
         return list(view.texts)
     if view.shown is Shown.CLEAR:
         return ["No alert"]
+    if view.shown is Shown.NO_SOURCE and view.mismatch:  # seen, not matched: the QoS, not the network
+        return [f"Collision avoidance seen, QoS does not match ({view.mismatch}): no alert can be shown"]
     return [SOURCE_LINES[view.shown], *(f"Last alert: {text}" for text in view.texts)]
 
 
@@ -115,6 +119,13 @@ class AlertSource:
         self.texts: list[str] | None = None  # what the source last said; None: nothing a live writer stands for
         self.said_by: int | None = None
         self.lost_reason = ""
+        self.mismatch = ""  # the QoS policy of the last alert writer seen that does not match
+
+    def incompatible(self, policy: str) -> bool:
+        """An alert writer was seen whose QoS does not match; whether the box changes."""
+        changed = not self.seen and policy != self.mismatch
+        self.mismatch = policy
+        return changed
 
     def matched_changed(self, current_count: int) -> SourceChange | None:
         self.matched = current_count
@@ -150,7 +161,7 @@ class AlertSource:
 
     def view(self) -> AlertView:
         if not self.seen:
-            return AlertView(Shown.NO_SOURCE)
+            return AlertView(Shown.NO_SOURCE, mismatch=self.mismatch)
         if not self.live:
             return AlertView(Shown.LOST, tuple(self.texts or ()))
         if self.texts is None:
@@ -273,6 +284,8 @@ def body(app: Application, ui: AlertUI, why_console: str) -> None:
         elif event == "liveliness_changed":
             events.append((event, status.last_publication_handle, status.alive_count, status.alive_count_change,
                            status.not_alive_count_change))
+        elif event == "requested_incompatible_qos":
+            events.append((event, status.last_policy_id, 0, 0, 0))
         else:
             return
         wake.set(True)
@@ -308,6 +321,9 @@ def body(app: Application, ui: AlertUI, why_console: str) -> None:
             event, writer, count, alive_change, not_alive_change = events.popleft()
             if event == "subscription_matched":
                 change = source.matched_changed(count)
+            elif event == "requested_incompatible_qos":
+                source.incompatible(policy_name(writer))  # said once by the reader's line; the box shows it
+                change = None
             else:
                 change = source.liveliness_changed(writer, count, alive_change, not_alive_change)
             if change is SourceChange.FOUND:

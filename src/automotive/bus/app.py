@@ -284,13 +284,23 @@ class Application:
         if self.stop_event.wait(self.match_report_s):
             return
         unmatched = self.bus.unmatched()
+        # Topics where an endpoint was seen but its QoS does not match: that, not the network, is what kept them apart
+        # (its line, with the policy, was said when it was seen).
+        mismatched = {topic: line.split("incompatible QoS ", 1)[-1].split(" ", 1)[0]
+                      for topic, _, line in self.bus.events.recent_events(float("inf"), "requested_incompatible_qos",
+                                                                           "offered_incompatible_qos")}
         for line in unmatched:
+            topic = line[1:line.index("]")]
+            if topic in mismatched:
+                self.log.warning("%s after %g s: one was seen, its QoS does not match (%s)", line,
+                                 self.match_report_s, mismatched[topic])
+                continue
             # An optional input (the LiDAR's Shapes Demo circles) is often absent by design: its status line's 0/s
             # says so; a warning would cry wolf in every default run.
             optional = any(line.startswith(f"[{topic}] reader") for topic in self.optional_topics)
             self.log.log(logging.DEBUG if optional else logging.WARNING, "%s after %g s%s", line, self.match_report_s,
                          " (an optional input)" if optional else "")
-        if unmatched and len(unmatched) == len(self.bus.endpoints):
+        if unmatched and len(unmatched) == len(self.bus.endpoints) and not mismatched:
             self.log.warning("no peer seen after %g s: nothing matched on any topic (check the peers, the "
                              "interface, the domain id)", self.match_report_s)
 

@@ -126,8 +126,7 @@ def assess(endpoints: list[EndpointState], optional: set[str], grace_over: bool,
                 why = incompatible.get(endpoint.topic)
                 if why:
                     said.add(endpoint.topic)
-                problems.append(Problem(WARN, f"[{endpoint.topic}] reader: no writer matched"
-                                              + (f" ({why})" if why else "")))
+                problems.append(Problem(WARN, f"[{endpoint.topic}] reader: " + (why or "no writer matched")))
     problems.extend(Problem(WARN, line) for line in not_alive)
     problems.extend(Problem(WARN, line) for topic, event, line in recent
                     if event in RECENT_WARNINGS and not (event == "requested_incompatible_qos" and topic in said))

@@ -9,12 +9,14 @@ incompatible QoS come once per remote endpoint and are always logged.
 from __future__ import annotations
 
 import logging
+import re
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 from cyclonedds.core import Listener
+from cyclonedds.qos import Policy
 
 from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.stats import Stats
@@ -38,6 +40,50 @@ REPEATING_EVENTS = frozenset({"offered_deadline_missed", "requested_deadline_mis
 
 def policy_name(policy_id: int) -> str:
     return QOS_POLICY_NAMES.get(policy_id, f"policy #{policy_id}")
+
+
+def _seconds(duration_ns: int) -> str:
+    return "infinite" if duration_ns >= 2**63 - 1 else f"{duration_ns / 1e9:g} s"
+
+
+def own_side(policy_id: int, qos: Any, reader: bool) -> str:
+    """What this endpoint asks (a reader) or offers (a writer) of the policy that failed a match, in words, and what
+    the other side must then have done: the mismatch's cause as far as this side can tell (Cyclone's status names the
+    policy, not the remote endpoint; ``automotive monitor --once`` shows both sides)."""
+    verb, other = ("requests", "the writer offers") if reader else ("offers", "the reader requests")
+    name = policy_name(policy_id)
+    try:
+        if name == "OWNERSHIP":
+            kind = "EXCLUSIVE" if Policy.Ownership.Exclusive in qos else "SHARED"
+            return f"this {'reader' if reader else 'writer'} {verb} {kind} ownership; {other} " + (
+                "SHARED" if kind == "EXCLUSIVE" else "EXCLUSIVE") + ": redundant mode on one side only?"
+        if name == "RELIABILITY" and reader:
+            return "this reader requests RELIABLE; the writer offers BEST_EFFORT"
+        if name == "RELIABILITY":
+            return "this writer offers BEST_EFFORT; the reader requests RELIABLE"
+        if name == "DURABILITY":
+            kind = (re.sub(r"(?<!^)(?=[A-Z])", "_", str(qos[Policy.Durability]).rsplit(".", 1)[-1]).upper()
+                    if Policy.Durability in qos else "VOLATILE")
+            return f"this {'reader' if reader else 'writer'} {verb} {kind} durability; {other} " + (
+                "less" if reader else "more")
+        if name == "DEADLINE":
+            period = getattr(qos[Policy.Deadline], "deadline", None) if Policy.Deadline in qos else None
+            words = _seconds(period) if isinstance(period, int) else "infinite"
+            return f"this {'reader' if reader else 'writer'} {verb} a deadline of {words}; {other} " + (
+                "a longer one or none" if reader else "a shorter one")
+        if name == "LIVELINESS":
+            lease = getattr(qos[Policy.Liveliness], "lease_duration", None) if Policy.Liveliness in qos else None
+            words = _seconds(lease) if isinstance(lease, int) else "infinite"
+            return f"this {'reader' if reader else 'writer'} {verb} a liveliness lease of {words}; {other} " + (
+                "a longer one or a weaker kind" if reader else "a shorter one or a stronger kind")
+        if name == "LATENCY_BUDGET":
+            return ("the writer's latency budget is larger than this reader's (an asynchronous writer?)" if reader
+                    else "this writer's latency budget is larger than the reader's (an asynchronous writer)")
+        if name == "DATA_REPRESENTATION":
+            return "the writer's data representation (XCDR1 or XCDR2) is not one the reader accepts"
+    except (KeyError, TypeError):  # a QoS without the policy: only its name is said
+        pass
+    return f"{other} another {name.lower().replace('_', ' ')}"
 
 
 class EventCounts:
@@ -169,13 +215,16 @@ class StatusListener(Listener):
                      f"{message} ({status.alive_count} alive, {status.not_alive_count} not alive)", level)
 
     def on_offered_incompatible_qos(self, writer: Any, status: Any) -> None:
+        policy = status.last_policy_id
         self._report("offered_incompatible_qos", status,
-                     f"incompatible QoS offered to a reader: {policy_name(status.last_policy_id)}", logging.WARNING)
+                     f"a reader was seen but does not match: incompatible QoS {policy_name(policy)} "
+                     f"({own_side(policy, writer.get_qos(), reader=False)})", logging.WARNING)
 
     def on_requested_incompatible_qos(self, reader: Any, status: Any) -> None:
+        policy = status.last_policy_id
         self._report("requested_incompatible_qos", status,
-                     f"incompatible QoS requested from a writer: {policy_name(status.last_policy_id)}",
-                     logging.WARNING)
+                     f"a writer was seen but does not match: incompatible QoS {policy_name(policy)} "
+                     f"({own_side(policy, reader.get_qos(), reader=True)})", logging.WARNING)
 
     def on_sample_lost(self, reader: Any, status: Any) -> None:
         if self.exclusive:
