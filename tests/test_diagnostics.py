@@ -36,6 +36,7 @@ from automotive.bus.diagnostics import ERROR, OK, WARN, EndpointState, Problem, 
 from automotive.bus.endpoints import Databus
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.diagnostic_msgs.msg.dds_ import DiagnosticArray_
+from automotive.types.Platform import PlatformControl
 
 TIMEOUT = 60.0
 ROS2_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
@@ -256,3 +257,26 @@ def test_the_worst_comes_first_and_an_incompatible_qos_says_why_a_reader_has_no_
         Problem(WARN, "2 bad sample(s) ignored in the last 5 s"),
     ]
     assert assess([], set(), True, [], [], 0, Problem(OK, "all clear")) == []  # an OK verdict is no problem
+
+
+def test_two_command_writers_of_one_vehicle_are_warned_on_the_console_and_in_diagnostics(  # type: ignore[no-untyped-def]
+        apps, domain_id: int, bus, diagnostics: DiagnosticsReader) -> None:
+    """Issue 38: outside redundant mode the platform's command reader is SHARED: a second decider drives the vehicle
+    too (every command of each executed). The platform warns, on its console and in /diagnostics, and says when one
+    is left."""
+    platform = apps.start("vehicle_platform", "--domain", str(domain_id))
+    first = bus.writer("PlatformControl", PlatformControl, "CollisionAvoidance")
+    platform.wait_for(r"\[PlatformControl\] reader matched a writer: 1 writer")
+    # a second decider, which leaves (a plain writer of the test's participant: the bus does not hold it)
+    second = DataWriter(bus.participant, bus.topic("PlatformControl", PlatformControl),
+                        bus.profiles.writer_qos(bus.library, "CollisionAvoidance"))
+    platform.wait_for(r"vehicle_platform WARNING: 2 command writers drive this vehicle \(PlatformControl, shared "
+                      r"ownership: every command of each is executed\): run one collision_avoidance, or two in "
+                      r"redundant mode")
+    diagnostics.status_of("vehicle_platform", lambda status: status.level == WARN
+                          and "2 command writers drive this vehicle" in status.message, what="warning of two")
+    second.__del__()
+    platform.wait_for(r"one command writer on PlatformControl again")
+    diagnostics.status_of("vehicle_platform", lambda status: "command writers" not in status.message,
+                          what="without the warning")
+    assert first.get_matched_subscriptions()

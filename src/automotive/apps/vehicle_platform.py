@@ -20,6 +20,7 @@ from typing import Any
 
 from automotive.bus.app import Application, run
 from automotive.bus.clock import format_timestamp, now_timestamp
+from automotive.bus.diagnostics import OK, WARN, Problem
 from automotive.bus.ownership import OwnerTracker
 from automotive.bus.properties import PropertyKeys
 from automotive.sim.csvdata import cycle_rows, load_platform_rows
@@ -30,20 +31,36 @@ from automotive.types.Platform import PlatformControl, PlatformStatus
 PROPERTY_KEYS = PropertyKeys.of("config.pubInterval", "dataFile", roles=["PlatformControl", "PlatformStatus"])
 
 
+def two_deciders(count: int) -> str:
+    return (f"{count} command writers drive this vehicle (PlatformControl, shared ownership: every command of each is "
+            "executed): run one collision_avoidance, or two in redundant mode (automotive launch --redundant)")
+
+
 def body(app: Application) -> None:
     interval_s = app.props.get_int("config.pubInterval", 100, minimum=1) / 1000
     rows = load_platform_rows(app.props.get_path("dataFile"), app.log)
     writers_lost: list[bool] = []  # appended by the listener thread when no command writer is alive
+    command_writers: list[int] = []  # matched command writers, appended by the listener thread at each change
 
     def on_status(event: str, topic: str, status: Any) -> None:
         if event == "liveliness_changed" and status.alive_count == 0 and (
                 status.not_alive_count_change > 0 or status.alive_count_change < 0):
             writers_lost.append(True)
+        elif event == "subscription_matched":
+            command_writers.append(status.current_count)
 
     control_reader = app.reader("PlatformControl", PlatformControl, "PlatformControl", hook=on_status)
     status_writer = app.writer("PlatformStatus", PlatformStatus, "PlatformStatus")
     owner = OwnerTracker(control_reader, app.log, app.stats)
     executed: int | None = None  # sample_id of the last command executed
+    deciders = 0  # command writers matched, while the reader is SHARED: more than one drive the vehicle at once
+
+    def health() -> Problem:
+        if deciders > 1:
+            return Problem(WARN, two_deciders(deciders))
+        return Problem(OK, "")
+
+    app.health_check = health
     app.log.info("vehicle platform: %d rows, status every %.0f ms", len(rows), interval_s * 1000)
 
     steer_angle = 0.0
@@ -60,6 +77,14 @@ def body(app: Application) -> None:
 
     # Woken by each command (executed at once) and by the status period.
     for _ in app.wake_ups(app.waitset(control_reader), timeout_s=until_status):
+        while command_writers:
+            count = command_writers.pop(0)
+            if not owner.enabled and (count > 1) != (deciders > 1):
+                if count > 1:
+                    app.log.warning(two_deciders(count))
+                else:
+                    app.log.info("one command writer on %s again", topic)
+            deciders = count if not owner.enabled else 0
         while writers_lost:
             writers_lost.pop()
             if owner.enabled and executed is not None:
