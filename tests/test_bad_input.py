@@ -79,6 +79,14 @@ def test_bad_properties(apps, app: str, args: list[str], pattern: str) -> None: 
     assert_one_line_error(apps.run(app, *args), rf"^{command_of(app)}: .*{pattern}")
 
 
+@pytest.mark.parametrize(("path", "pattern"), [("", "the path is empty: give a file"),
+                                               (".", r"\.: is a folder, not a file")])
+def test_an_empty_or_folder_properties_path_is_named_as_given(apps, path: str,  # type: ignore[no-untyped-def]
+                                                               pattern: str) -> None:
+    assert_one_line_error(apps.run("vision", "--properties", path),
+                          rf"^automotive-vision: argument --properties: {pattern} ")
+
+
 
 @pytest.mark.parametrize("app,args,pattern", [
     ("hmi", ["-D", "topic.Alerts=no spaces allowed"],

@@ -49,6 +49,7 @@ from automotive.bus.cli import (
     add_stats_option,
     command_name,
     dump_stacks_on_request,
+    input_file,
     on_signals,
     stop_dumping_stacks,
 )
@@ -96,7 +97,7 @@ def build_parser(name: str, description: str, add_arguments: ArgumentAdder | Non
     """The program's parser; its usage and hints name it as the user typed it (``command``: its own command, by
     default the application's console script)."""
     parser = ArgumentParser(prog=command_name(command or application_command(name)), description=description)
-    parser.add_argument("--properties", type=Path, default=None,
+    parser.add_argument("--properties", type=input_file, default=None,
                         help=f"properties file (default: the shipped properties/{name}.properties; "
                              "automotive config export DIR writes an editable copy)")
     add_override_option(parser)

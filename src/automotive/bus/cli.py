@@ -260,6 +260,17 @@ def output_folder_problem(path: Path, create: bool = False) -> str | None:
     return f"cannot create it in folder {parent} ({problem})" if problem else None
 
 
+def input_file(text: str) -> Path:
+    """An argparse type: a file the program reads; an empty path or a folder is refused as it is parsed (reading
+    them would name the current folder, '.', instead of what the user typed)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("the path is empty: give a file")
+    path = Path(text)
+    if path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text}: is a folder, not a file")
+    return path
+
+
 def output_file(text: str) -> Path:
     """An argparse type: a file the program writes (:func:`output_file_problem`), checked as it is parsed."""
     path = Path(text)
