@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -15,6 +16,7 @@ from pathlib import Path
 
 import pytest
 from apprunner import AppRunner, CommandProcess
+from dds_helpers import wait_until
 
 from automotive import config
 from automotive.bus import stats
@@ -296,3 +298,40 @@ def test_a_child_that_keeps_no_lines_hands_each_to_its_callback() -> None:
     assert child.wait_exit(timeout=30) == 0
     assert seen == [f"line {n}" for n in range(2000)]
     assert child.records == [] and child._new_lines.qsize() <= 1  # at most the end-of-stream mark
+
+
+def test_only_alerts_stand_out_on_the_console() -> None:
+    from automotive.tools.launch import ALERT_LINE
+
+    assert ALERT_LINE.search("hmi: DRIVER ALERT: Front collision warning")
+    assert ALERT_LINE.search("collision_avoidance: ALERT: driver attention needed")
+    assert ALERT_LINE.search("hmi WARNING: alert source LOST: the alert writer's liveliness was lost")
+    assert not ALERT_LINE.search("hmi: HMI: console alert box, waiting for alerts; no alert source")
+    assert not ALERT_LINE.search("+==== no alert state yet ====+ Collision avoidance live, has said nothing yet")
+
+
+@pytest.mark.skipif(shutil.which("tmux") is None, reason="tmux is not installed")
+def test_tmux_mode_says_its_mode_and_a_failed_switch(domain_id: int, tmp_path: Path) -> None:
+    """Issue 38: in tmux mode the launcher says "tmux mode" (not "background"), and a switch to its session that
+    tmux refuses is said as such, with how to watch it."""
+    # A tmux server of the test's own, with no client attached: the launcher, as if run inside it ($TMUX), starts
+    # its session there, and tmux refuses to switch a client that does not exist.
+    socket = tmp_path / "tmux.sock"
+    subprocess.run(["tmux", "-S", str(socket), "new-session", "-d", "-s", "other"], check=True, timeout=20)
+    env = {**os.environ, "TMUX": f"{socket},1,0", "DISPLAY": "", "XDG_RUNTIME_DIR": str(tmp_path)}
+    logs = tmp_path / "logs"
+    try:
+        started = subprocess.run([*LAUNCH, "--mode", "tmux", "--domain", str(domain_id), "--log-dir", str(logs),
+                                  "vision"], capture_output=True, text=True, env=env, timeout=60)
+        assert started.returncode == 0, started.stdout + started.stderr
+        assert "could not switch to it (no current client)" in started.stdout, started.stdout
+        assert f"`tmux attach -t automotive-domain{domain_id}` to watch" in started.stdout, started.stdout
+        launch_log = logs / "launch.log"
+        wait_until(lambda: launch_log.is_file() and "application(s) running" in launch_log.read_text(), 60,
+                   "the launcher in tmux running its application")
+        assert "(tmux mode)" in launch_log.read_text(), launch_log.read_text()
+        stopped = subprocess.run([*LAUNCH, "stop", "--log-dir", str(logs)], capture_output=True, text=True, env=env,
+                                 timeout=STOP_TIMEOUT + 30)
+        assert stopped.returncode == 0, stopped.stdout + stopped.stderr
+    finally:
+        subprocess.run(["tmux", "-S", str(socket), "kill-server"], capture_output=True, timeout=20)

@@ -97,7 +97,8 @@ PID_FILE = "launch.pid"
 DEBUG_LINE = re.compile(DEBUG_LINE_PATTERN)
 DEBUG_LINE_GREP = "^[0-9:.]+ [^ ]+ debug: "  # the same, for grep -E in a window's shell
 # Lines that must stand out: an alert raised or cleared, a lost alert source.
-ALERT_LINE = re.compile(r"DRIVER ALERT|ALERT:|all clear|All clear|alert source (lost|LOST)|no alert source")
+# Not the HMI's "no alert source" or "no alert state yet": the start of a system is no alert.
+ALERT_LINE = re.compile(r"DRIVER ALERT|ALERT:|all clear|All clear|alert source (lost|LOST)")
 SUMMARY_FILE = "launch-summary.txt"
 MONITOR = "monitor"  # --monitor: the tool's name, as a label and as a program (automotive.tools.monitor)
 MONITOR_PORT = 8780  # the monitor's default (automotive.tools.monitoring.server.DEFAULT_PORT)
@@ -736,7 +737,7 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
     try:
         supervisor.start_all()
         if supervisor.apps:
-            console.say(f"{len(supervisor.apps)} application(s) running ({mode} mode), logs in {log_dir}; "
+            console.say(f"{len(supervisor.apps)} application(s) running ({supervisor.mode} mode), logs in {log_dir}; "
                         f"Ctrl-C or `{stop_hint(log_dir)}` stops them")
             supervisor.watch()
     finally:
@@ -802,8 +803,13 @@ def run_in_tmux(args: argparse.Namespace, argv: list[str]) -> int:
         raise LaunchError(f"tmux could not start session '{session}': {result.stderr.strip()}")
     log_dir: Path = args.log_dir
     if os.environ.get("TMUX"):
-        subprocess.run(["tmux", "switch-client", "-t", session])
-        print(f"launch: switched to tmux session '{session}'; `{PROG} stop` stops it")
+        switched = subprocess.run(["tmux", "switch-client", "-t", session], capture_output=True, text=True)
+        if switched.returncode == 0:
+            print(f"launch: switched to tmux session '{session}'; `{PROG} stop` stops it")
+        else:  # the system runs all the same: say how to see it
+            print(f"launch: running in tmux session '{session}', but could not switch to it "
+                  f"({switched.stderr.strip() or 'tmux switch-client failed'}): `tmux attach -t {session}` to "
+                  f"watch, `{PROG} stop` to stop")
         return 0
     if not interactive():
         print(f"launch: running in tmux session '{session}': `tmux attach -t {session}` to watch, "
