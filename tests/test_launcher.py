@@ -222,6 +222,19 @@ def test_bad_input_is_one_line_and_exit_code_2(args: list[str], message: str, tm
     assert "Traceback" not in result.stderr
 
 
+def test_an_unknown_key_of_one_application_starts_none(domain_id: int, tmp_path: Path) -> None:
+    """Issue 38: the launcher checks the settings of each application given its own -D before it starts any."""
+    result = subprocess.run([*LAUNCH, "--mode", "background", "--log-dir", str(tmp_path), "--domain", str(domain_id),
+                             "-D", "collision_avoidance:config.alertSiz=1.0"], capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr, result.stderr
+    assert "collision_avoidance: automotive-collision-avoidance: " in result.stderr
+    assert "unknown key(s) for collision_avoidance: 'config.alertSiz' (-D; did you mean 'config.alertSize'?)" in \
+        result.stderr
+    assert "nothing was started" in result.stderr and not list(tmp_path.glob("*.log")), result.stdout
+
+
 def test_list_names_all_eight_applications() -> None:
     result = subprocess.run([*LAUNCH, "--list"], capture_output=True, text=True, timeout=20)
     assert result.returncode == 0

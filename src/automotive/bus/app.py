@@ -111,6 +111,9 @@ def build_parser(name: str, description: str, add_arguments: ArgumentAdder | Non
     parser.add_argument("--filter", dest="filters", action="append", default=[], metavar="TOPIC=EXPR",
                         help="content filter of the readers of TOPIC, e.g. \"Circle=color = 'RED' AND x < 100\" "
                              "(repeatable; config.filter.<TOPIC> in the properties)")
+    # The launcher's check before it starts anything: read the properties and overrides, refuse an unknown key, and
+    # end without joining the bus (exit 0, or 2 with the one line).
+    parser.add_argument("--check-config", action="store_true", help=argparse.SUPPRESS)
     if add_arguments is not None:
         add_arguments(parser)
     return parser
@@ -422,6 +425,8 @@ def run(name: str, description: str, body: Callable[[Application], None], argv: 
         props = load_properties(name, args)
         if keys is not None:  # an unknown key ends the program here, before it says or creates anything
             props.declare(RUNTIME_KEYS | keys, name)
+        if getattr(args, "check_config", False):
+            return 0
         cyclone.start(log)  # the fast paths, once, before any entity; or one line saying why they are off
         app = Application(name, args, props, log)
         if stdout_gone:

@@ -233,6 +233,26 @@ def plan(args: argparse.Namespace) -> tuple[list[AppSpec], list[tuple[str, str]]
     return specs, missing
 
 
+def check_settings(specs: list[AppSpec], overrides: Sequence[str]) -> None:
+    """Each application given a -D APP:KEY=VALUE of its own reads its settings once, without joining the bus, before
+    any is started: a key it does not know stops the launch with its one line, instead of that application ending
+    with exit code 2 while the others run on. (A -D KEY=VALUE for all goes to every application, so a key one of
+    them does not know is an error of every launch, seen at once.) The checks run side by side; each imports its
+    application, about a second."""
+    targets = {item.split(":", 1)[0] for item in overrides if re.match(r"^[\w-]+:", item)}
+    checks = [(spec, subprocess.Popen([*spec.command, "--check-config"], stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.PIPE, text=True))
+              for spec in specs if spec.module in APPS and (spec.module in targets or spec.name in targets)]
+    problems = []
+    for spec, check in checks:
+        _, errors = check.communicate()
+        if check.returncode != 0:
+            line = errors.strip().splitlines()[-1] if errors.strip() else f"exit code {check.returncode}"
+            problems.append(f"{spec.name}: {line}")
+    if problems:
+        raise LaunchError("; ".join(problems) + " (nothing was started)")
+
+
 def stats_folder(module: str, name: str, stats_dirs: Sequence[str]) -> Path | None:
     """Where one application writes its status records (--stats-dir DIR for all, APP:DIR for that one), or None."""
     folder: Path | None = None
@@ -1044,6 +1064,7 @@ def _main(argv: list[str]) -> int:
     if problem:
         raise LaunchError(f"--log-dir {args.log_dir}: {problem}")
     specs, missing = plan(args)
+    check_settings(specs, args.overrides)
     if not specs:
         reasons = "; ".join(f"{name}: {reason}" for name, reason in missing)
         raise LaunchError(f"nothing to start ({reasons})" if reasons else "nothing to start")
