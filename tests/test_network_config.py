@@ -390,3 +390,20 @@ def test_keys_are_declared_once_per_role() -> None:
     assert keys.exact == {"topic.Vision", "qos.Vision.Profile"}
     assert (RUNTIME_KEYS | keys).covers("config.filter.VisionTopic")
     assert not (RUNTIME_KEYS | keys).covers("config.nope")
+
+
+@pytest.mark.parametrize(("uri", "said"), [
+    ("<CycloneDDS><Domain><General><Interfacez/></General></Domain></CycloneDDS>",
+     "CYCLONEDDS_URI: General/Interfacez: unknown element"),
+    ("<General><MaxMessageSize>abc</MaxMessageSize></General>", "CYCLONEDDS_URI: General/MaxMessageSize: abc: invalid "
+                                                                 "value"),
+])
+def test_a_uri_cyclone_refuses_is_one_line_naming_the_users_element(apps, domain_id: int,  # type: ignore[no-untyped-def]
+                                                                     uri: str, said: str) -> None:
+    """Issue 38: Cyclone's own complaint (with an offset into the merged XML) and the program's line were three
+    lines; now one, in the user's words."""
+    result = apps.run("vision", "--domain", str(domain_id), "--count", "1", env={"CYCLONEDDS_URI": uri},
+                      timeout=TIMEOUT)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr == f"automotive-vision: {said}\n", result.stderr
+    assert "network:" not in result.stdout and "+" not in result.stderr, result.stdout

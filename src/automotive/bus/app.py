@@ -182,11 +182,12 @@ class Application:
         # anything else is worth a line.
         shipped_default = (self.network.mode == "loopback" and not self.network.user_config
                            and not self.network.network_from_user)
-        log.log(logging.DEBUG if shipped_default else logging.INFO, "network: %s", self.network.describe())
         if notice is not None:
             log.warning("%s", notice)
         self.bus = Databus(self.domain_id, self.profiles, self.library, log, self.network, self.instance_name,
                            self.stats, self.reporter)
+        # Said once Cyclone took the configuration: one it refuses is one line, naming the user's element.
+        log.log(logging.DEBUG if shipped_default else logging.INFO, "network: %s", self.network.describe())
         self.guard = GuardCondition(self.bus.participant)
         self._ready = False
         self.iterations = 0

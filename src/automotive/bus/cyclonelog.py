@@ -45,10 +45,33 @@ _DROPPED = re.compile(r"data\(application, vendor (\d+)\.(\d+)\): ([0-9a-fA-F:]+
 _NUMBERS = re.compile(r"[0-9A-Fa-f:.]*\d[0-9A-Fa-f:.]*")
 
 
+# Cyclone's complaint about its configuration: ``config: //CycloneDDS/Domain/General: Interfacez: unknown element
+# (CYCLONEDDS_URI+671 line 1)``; the offset is into the merged XML (ours, then the user's), which the user never saw.
+_CONFIG = re.compile(r"^config: //CycloneDDS(?:/Domain)?/?(?P<path>[^:]*): (?P<what>.*?)"
+                     r"(?: \((?P<source>[^()]*)\))?$")
+
+
+def config_problem(message: str) -> str | None:
+    """Cyclone's line about its configuration in the user's words: the element's path as the user writes it (without
+    CycloneDDS/Domain, which a fragment may leave out), what is wrong, and the source when it is a file of theirs."""
+    found = _CONFIG.match(message.strip())
+    if found is None:
+        return None
+    path = "/".join(part for part in found["path"].split("/") if part and part != "#text")
+    what = found["what"]
+    element = re.match(r"^([\w:-]+): (unknown element|unknown attribute)", what)  # "Interfacez: unknown element"
+    if element is not None:
+        path, what = "/".join(filter(None, (path, element[1]))), what[len(element[1]) + 2:]
+    source = found["source"] or ""
+    where = f" ({source})" if source and not source.startswith("CYCLONEDDS_URI+") else ""
+    return f"{path + ': ' if path else ''}{what}{where}"
+
+
 class _Sink:
     def __init__(self, reporter: BadSampleReporter, setter: Any = None):
         self.reporter = reporter
         self.others = RateLimitedLines(self._to_stderr, reporter.interval_s)
+        self.config_problems: list[str] = []  # kept for the one line of a configuration Cyclone refuses
 
     @staticmethod
     def _to_stderr(line: str) -> None:
@@ -65,6 +88,10 @@ class _Sink:
                                 f"a valid {dropped[5]}: enum values in the enum, strings and sequences within their "
                                 "bounds, nothing truncated")
             self.reporter.report(dropped[4], problem, writer, action="dropped by Cyclone DDS")
+            return
+        refused = config_problem(message)
+        if refused is not None:  # said by the program, in one line with its own, when the domain cannot be made
+            self.config_problems.append(refused)
             return
         line = f"{header}{message}"
         if priority & LC_FATAL:  # Cyclone aborts right after: said as is
@@ -106,3 +133,13 @@ def uninstall() -> None:
 
 def installed() -> bool:
     return _installed is not None
+
+
+def take_config_problems() -> list[str]:
+    """What Cyclone said of its configuration since the last call (nothing when the sink is not installed: Cyclone
+    then said it on stderr itself)."""
+    sink = _installed
+    if sink is None:
+        return []
+    problems, sink.config_problems = sink.config_problems, []
+    return problems

@@ -21,12 +21,12 @@ from cyclonedds.qos import DataReaderQos, DataWriterQos, Policy, Qos
 from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 
-from automotive.bus import badsamples, console, memtune
+from automotive.bus import badsamples, console, cyclonelog, memtune
 from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.contentfilter import FilteredReader, Predicate
 from automotive.bus.errors import ConfigError, refused_as_config_error
-from automotive.bus.network import NetworkConfig, PeerPlan, user_uri
+from automotive.bus.network import URI_VARIABLE, NetworkConfig, PeerPlan, user_uri
 from automotive.bus.ports import domain_base, highest_port
 from automotive.bus.qos import QosProfiles
 from automotive.bus.stats import Stats
@@ -100,9 +100,16 @@ def _port_taken(port: int) -> bool:
 
 
 def _domain(domain_id: int, network: NetworkConfig, plan: PeerPlan) -> Domain:
+    cyclonelog.take_config_problems()  # only what this domain's configuration gets said
     try:
         return Domain(domain_id, network.cyclone_xml(plan))
     except DDSException as error:
+        problems = cyclonelog.take_config_problems()
+        if problems and network.user_config:  # Cyclone named the element: the user's, in the user's words
+            raise ConfigError(f"{URI_VARIABLE}: " + "; ".join(dict.fromkeys(problems))) from None
+        if problems:
+            raise ConfigError(f"network {network.describe()}: Cyclone refused the configuration: "
+                              + "; ".join(dict.fromkeys(problems))) from None
         raise ConfigError(f"network {network.describe()}: Cyclone refused the configuration ({error})") from None
 
 
