@@ -18,7 +18,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Qos
 from cyclonedds.sub import DataReader
 
-from automotive.bus import console
+from automotive.bus import console, latency
 from automotive.bus.app import Application
 from automotive.bus.status import EventHook
 from automotive.cyclone import serdata
@@ -231,6 +231,7 @@ class FlowReader(_SharedEnd):
         if lent.samples:
             self.deadline.sample(None)
             console.traffic.count_in(self.topic, len(lent.samples))  # bypass the checked reader: counted here
+            latency.recent.record(self.topic, self.local.shared_writer(), [s.source_timestamp for s in lent.samples])
         return lent
 
     def check_deadline(self) -> None:
