@@ -80,16 +80,16 @@ class _Window:
         self.values = [array("d") for _ in range(WINDOW_S)]
         self.last = 0
 
-    def add(self, second: int, latencies_ms: Iterable[float]) -> None:
+    def add(self, second: int, latencies_ms: list[float]) -> None:
         slot = second % WINDOW_S
         values = self.values[slot]
         if self.seconds[slot] != second:
             self.seconds[slot], self.counts[slot] = second, 0
             del values[:]
-        for value in latencies_ms:
-            self.counts[slot] += 1
-            if len(values) < KEPT_PER_SECOND:
-                values.append(value)
+        self.counts[slot] += len(latencies_ms)
+        room = KEPT_PER_SECOND - len(values)
+        if room > 0:
+            values.extend(latencies_ms[:room])
         self.last = second
 
     def recent(self, second: int, into: list[float]) -> int:
@@ -125,16 +125,17 @@ class RecentLatencies:
     def record(self, topic: str, writer: str, stamps_ns: Iterable[int], now_ns: int | None = None) -> None:
         """Samples of ``topic`` from ``writer`` (its participant's name) with these source timestamps, taken now."""
         now = time.time_ns() if now_ns is None else now_ns
-        latencies = [(now - stamp) / 1e6 for stamp in stamps_ns if stamp > 0]  # 0 or less: the writer gave none
+        latencies = [(now - stamp) * 1e-6 for stamp in stamps_ns if stamp > 0]  # 0 or less: the writer gave none
         if not latencies:
             return
+        source = (topic, writer)
         with self._lock:
-            window = self._windows.get((topic, writer))
+            window = self._windows.get(source)
             if window is None:
                 if len(self._windows) >= MAX_SOURCES:
                     oldest = min(self._windows, key=lambda source: self._windows[source].last)
                     del self._windows[oldest]
-                window = self._windows[(topic, writer)] = _Window()
+                window = self._windows[source] = _Window()
             window.add(now // 1_000_000_000, latencies)
 
     def summaries(self, now_ns: int | None = None) -> list[LatencySummary]:
