@@ -16,6 +16,9 @@ serialized samples instead and, for each one:
 Applications keep calling ``reader.take(N=...)`` and filtering ``isinstance(sample, Type)``; a take never raises for
 what a remote writer sent.
 
+Each take also records the latency of the samples it gives (its one clock read minus each writer's source timestamp,
+per writer participant: :func:`record_latencies`), which /diagnostics reports (automotive.bus.latency.recent).
+
 :meth:`CheckedReader.use_views` makes one reader decode its sequences of fixed-size structs (the vision objects, the
 fused object list) as read-only numpy structured arrays with the generated codec (automotive.cyclone.codecs), without
 one Python object per element; their float fields are checked in bulk (automotive.bus.validation).
