@@ -220,8 +220,9 @@ class ChainHop:
 
 CHAIN_HOPS = (("VisionTopic", "vision", "sensor_fusion"), ("SensorObjects", "sensor_fusion", "collision_avoidance"),
               ("AlertTopic", "collision_avoidance", "hmi"))
-CHAIN_BASIS = ("the sum of the transport hops' p50 and of their p99 (vision -> sensor_fusion -> collision_avoidance "
-               "-> hmi, each as its reader measures it); it leaves out each application's own processing time, and a "
+CHAIN_BASIS = ("the sum of the hops' p50 and of their p99 (vision -> sensor_fusion -> collision_avoidance -> hmi), "
+               "each hop from its writer's source timestamp to its reader's take (a wait in the reader's queue "
+               "counts); the time each application takes between its take and its next write is not in it, and a "
                "sum of p99s is not the p99 of the sum: an estimate, not an end-to-end measurement")
 
 
