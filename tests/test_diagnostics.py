@@ -130,6 +130,30 @@ def test_a_running_application_reports_once_a_second_as_ros2_reads_it(  # type: 
     assert "diagnostics" not in vision.output, vision.output
 
 
+def test_a_reader_reports_the_latency_of_each_topic_it_reads_and_of_each_writer_over_the_last_10_s(  # type: ignore[no-untyped-def]
+        prefix: str, apps, domain_id: int, diagnostics: DiagnosticsReader) -> None:
+    # sensor_fusion reads VisionTopic through its checked reader (DDS) and the LiDAR through shared memory.
+    shared = ("-D", f"config.shmPrefix={prefix}", "-D", "config.transport=shm")
+    apps.start("vision", "--domain", str(domain_id))
+    apps.start("lidar", "--domain", str(domain_id), *shared)
+    apps.start("sensor_fusion", "--domain", str(domain_id), *shared)
+    wanted = [f"{subject} latency {figure} (last 10 s)" for subject in
+              ("VisionTopic", "VisionTopic from vision", "rt/LidarTopic", "rt/LidarTopic from lidar")
+              for figure in ("p50 ms", "p99 ms", "samples")]
+    status = diagnostics.status_of("sensor_fusion", lambda status: set(wanted) <= set(values(status)),
+                                   what="with the latency of VisionTopic and rt/LidarTopic, all and per writer")
+    figures = values(status)
+    for subject in ("VisionTopic", "VisionTopic from vision", "rt/LidarTopic", "rt/LidarTopic from lidar"):
+        p50, p99 = (float(figures[f"{subject} latency {figure} ms (last 10 s)"]) for figure in ("p50", "p99"))
+        samples = int(figures[f"{subject} latency samples (last 10 s)"])
+        assert 0 < p50 <= p99 < 60_000 and samples > 0, (subject, p50, p99, samples)
+    # One writer each: all of a topic's samples are that writer's.
+    for topic, writer in (("VisionTopic", "vision"), ("rt/LidarTopic", "lidar")):
+        assert figures[f"{topic} latency samples (last 10 s)"] == figures[
+            f"{topic} from {writer} latency samples (last 10 s)"]
+    assert not [key for key in figures if key.startswith("SensorObjects") and "latency" in key]  # written, not read
+
+
 def test_the_hmi_warns_without_an_alert_writer_is_ok_with_one_and_errs_when_it_is_lost(  # type: ignore[no-untyped-def]
         apps, bus: Databus, domain_id: int, diagnostics: DiagnosticsReader) -> None:
     hmi = apps.start("hmi", "--domain", str(domain_id), "--ui", "console", "-D", "config.matchReport=1")

@@ -36,7 +36,7 @@ from automotive.apps.camera_sub import CameraStats
 from automotive.bus import memtrace, memtune
 from automotive.bus.clock import now_timestamp
 from automotive.bus.endpoints import Databus
-from automotive.bus.latency import LatencyHistogram, percentile
+from automotive.bus.latency import KEPT_PER_SECOND, MAX_SOURCES, WINDOW_S, LatencyHistogram, RecentLatencies, percentile
 from automotive.bus.network import RECEIVE_BUFFER_SIZE, NetworkConfig, PeerPlan
 from automotive.bus.qos import QosProfiles
 from automotive.sim.csvdata import cycle_rows, load_vision_rows
@@ -274,6 +274,40 @@ def test_latency_percentiles_in_fixed_memory() -> None:
     assert histogram.counts.nbytes == size and histogram.total == len(latencies)
     assert LatencyHistogram().percentile_ns(0.5) is None and percentile([], 0.5) is None
     assert percentile([3.0, 1.0, 2.0], 0.5) == 2.0 and percentile([3.0, 1.0, 2.0], 1.0) == 3.0
+
+
+def test_recent_latencies_are_of_the_last_10_s_per_topic_and_writer_in_bounded_memory() -> None:
+    """What /diagnostics reports: each topic's and each writer's percentiles over the last WINDOW_S seconds (the
+    benchmarks' rank), counted in full however fast a flow is, with a bounded number of values and sources kept."""
+    second = 1_000_000_000
+    start = 1_700_000_000 * second
+    recent = RecentLatencies()
+    # vision: 1..10 ms, one a second for 20 s; only the last 10 s count
+    for index in range(20):
+        now = start + index * second
+        recent.record("VisionTopic", "vision", [now - (index % 10 + 1) * 1_000_000], now)
+    recent.record("VisionTopic", "vision_b", [start + 19 * second - 50_000_000], start + 19 * second)
+    recent.record("VisionTopic", "vision", [0, -5], start + 19 * second)  # no source timestamp: not counted
+    summaries = {(s.topic, s.writer): s for s in recent.summaries(start + 19 * second)}
+    one = summaries[("VisionTopic", "vision")]
+    assert one.count == WINDOW_S and one.p50_ms == percentile([float(i) for i in range(1, 11)], 0.5) == 6.0
+    assert one.p99_ms == 10.0
+    both = summaries[("VisionTopic", None)]
+    assert both.count == WINDOW_S + 1 and both.p99_ms == 50.0 and both.p50_ms == 6.0
+    assert [(s.topic, s.writer) for s in recent.summaries(start + 19 * second)] == [
+        ("VisionTopic", None), ("VisionTopic", "vision"), ("VisionTopic", "vision_b")]
+    assert recent.summaries(start + 40 * second) == []  # 10 s without a sample: nothing to report
+
+    # A fast flow: every sample counted, at most KEPT_PER_SECOND a second kept; sources bounded.
+    now = start + 100 * second
+    recent.record("CameraImageData", "camera_pub", [now - 1_000_000] * 10_000, now)
+    camera = next(s for s in recent.summaries(now) if s.writer == "camera_pub")
+    assert camera.count == 10_000 and camera.p50_ms == camera.p99_ms == 1.0
+    window = recent._windows[("CameraImageData", "camera_pub")]
+    assert sum(len(values) for values in window.values) == KEPT_PER_SECOND
+    for index in range(MAX_SOURCES * 3):
+        recent.record(f"Topic{index}", "writer", [now - 1], now + index)
+    assert len(recent._windows) == MAX_SOURCES
 
 
 # A process of its own, so that no other thread allocates meanwhile: 8 MiB in 128 KiB blocks from malloc, touched,

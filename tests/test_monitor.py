@@ -392,14 +392,82 @@ def test_the_camera_from_camera_subs_report_and_the_vehicle_in_text_and_json() -
     assert json.loads(analyse(1, [], []).to_json())["vehicle"]["speed_kmh"] is None
 
 
+def latency_keys(subject: str, p50: str, p99: str, samples: str) -> tuple[tuple[str, str], ...]:
+    """A program's /diagnostics latency values of ``subject`` (``VisionTopic``, ``VisionTopic from vision``)."""
+    return ((f"{subject} latency p50 ms (last 10 s)", p50), (f"{subject} latency p99 ms (last 10 s)", p99),
+            (f"{subject} latency samples (last 10 s)", samples))
+
+
+@pytest.mark.fast
+def test_latency_per_topic_per_pair_and_the_chain_marked_where_writer_and_reader_hosts_differ() -> None:
+    # vision on host "front", sensor_fusion, collision_avoidance and hmi on "car"; lidar's host is not told.
+    participants = [ParticipantRecord("v", "vision", 0x0110, "front", "1"),
+                    ParticipantRecord("f", "sensor_fusion", 0x0110, "car", "2"),
+                    ParticipantRecord("c", "collision_avoidance", 0x0110, "car", "3"),
+                    ParticipantRecord("h", "hmi", 0x0110, "car", "4"), ParticipantRecord("l", "lidar", 0x0110)]
+    fusion = ProgramReport("sensor_fusion", "car", 0, "ok", (
+        ("VisionTopic in/s", "10"), ("rt/LidarTopic in/s", "20"),
+        *latency_keys("VisionTopic", "2.5", "9.0", "100"),
+        *latency_keys("VisionTopic from vision", "2.5", "9.0", "100"),
+        *latency_keys("rt/LidarTopic", "0.3", "0.9", "200"),
+        *latency_keys("rt/LidarTopic from lidar", "0.3", "0.9", "200"),
+        *latency_keys("Junk", "x", "nan", "0")), 0.5)
+    avoidance = ProgramReport("collision_avoidance", "car", 0, "ok", (
+        ("SensorObjects in/s", "10"), *latency_keys("SensorObjects", "1.0", "3.0", "100"),
+        *latency_keys("SensorObjects from sensor_fusion", "1.0", "3.0", "100")), 0.5)
+    hmi = ProgramReport("hmi", "car", 0, "ok", (), 0.5)  # no alert in the last 10 s: no AlertTopic figure
+    snapshot = analyse(1, participants, [], [fusion, avoidance, hmi])
+    measured = {(pair.topic, pair.writer, pair.reader): pair for pair in snapshot.latencies}
+    assert set(measured) == {("VisionTopic", "vision", "sensor_fusion"), ("rt/LidarTopic", "lidar", "sensor_fusion"),
+                          ("SensorObjects", "sensor_fusion", "collision_avoidance")}  # Junk: no samples, none
+    vision = measured[("VisionTopic", "vision", "sensor_fusion")]
+    assert (vision.p50_ms, vision.p99_ms, vision.samples, vision.clock, vision.writer_host, vision.reader_host) == (
+        2.5, 9.0, 100, "not shared", "front", "car")
+    assert measured[("rt/LidarTopic", "lidar", "sensor_fusion")].clock == "unknown host"
+    assert measured[("SensorObjects", "sensor_fusion", "collision_avoidance")].clock == "shared"
+    flow = {f.topic: f for f in snapshot.flows}
+    assert flow["VisionTopic"].latency == {"sensor_fusion": {"p50_ms": 2.5, "p99_ms": 9.0, "samples": 100,
+                                                             "clock": "not shared"}}
+    assert flow["SensorObjects"].latency["collision_avoidance"]["clock"] == "shared"
+    chain = snapshot.chain
+    assert chain is not None and (chain.p50_ms, chain.p99_ms, chain.clock, chain.missing) == (
+        3.5, 12.0, "not shared", ["AlertTopic"])
+    assert "sum" in chain.basis and "not an end-to-end measurement" in chain.basis
+
+    text = render(snapshot)
+    section = text.split("\nLatency ", 1)[1].split("\n\n", 1)[0]
+    assert "  VisionTopic read by sensor_fusion: p50 ~2.5 ms, p99 ~9 ms (clock not shared: another host), 100 samples" \
+        in section, section
+    assert "  SensorObjects read by collision_avoidance: p50 1 ms, p99 3 ms, 100 samples" in section, section
+    assert "    VisionTopic: vision -> sensor_fusion: p50 ~2.5 ms" in section, section
+    assert "(a host not known: clock may not be shared)" in section, section
+    assert ("  alert chain vision -> hmi: p50 ~3.5 ms, p99 ~12 ms (clock not shared: another host), without "
+            "AlertTopic (no sample in the last 10 s)") in section, section
+    document = json.loads(snapshot.to_json())
+    assert document["chain"]["p99_ms"] == 12.0 and document["chain"]["missing"] == ["AlertTopic"]
+    assert {(pair["topic"], pair["clock"]) for pair in document["latencies"]} == {
+        ("VisionTopic", "not shared"), ("rt/LidarTopic", "unknown host"), ("SensorObjects", "shared")}
+
+    # Every hop on one host, the alert chain complete: exact, the sum of the hops.
+    participants[0] = ParticipantRecord("v", "vision", 0x0110, "car", "1")
+    hmi = ProgramReport("hmi", "car", 0, "ok", (*latency_keys("AlertTopic", "0.5", "1.5", "90"),
+                                                *latency_keys("AlertTopic from collision_avoidance", "0.5", "1.5",
+                                                              "90")), 0.5)
+    chain = analyse(1, participants, [], [fusion, avoidance, hmi]).chain
+    assert chain is not None and (chain.p50_ms, chain.p99_ms, chain.clock, chain.missing) == (4.0, 13.5, "shared", [])
+
+
 # -- the real system --------------------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def system(module_domain_id: int) -> Iterator[dict[str, AppProcess]]:
-    """The applications on the module's domain; the LiDAR with the asynchronous writer (latency budget 1 ms)."""
+    """The applications on the module's domain; the LiDAR with the asynchronous writer (latency budget 1 ms);
+    collision avoidance alerting all the time (the alert chain's every hop moves)."""
     runner = AppRunner(ROOT)
     try:
         started = {name: runner.start(name, "--domain", str(module_domain_id),
-                                      *(["-D", "qos.Lidar.Profile=LidarAsync"] if name == "lidar" else []))
+                                      *(["-D", "qos.Lidar.Profile=LidarAsync"] if name == "lidar" else []),
+                                      # every car is taller than 1 m: an alert while it lasts, every hop moves
+                                      *(["-D", "config.alertSize=1.0"] if name == "collision_avoidance" else []))
                    for name in APPLICATIONS}
         yield started
     finally:
@@ -510,6 +578,44 @@ def test_flows_have_bytes_and_the_vehicle_its_state_and_the_probes_make_no_write
     assert re.match(r"  alert: (all clear|DRIVER ALERT: .+)$", vehicle_text[0]), text
     assert re.match(r"  speed -?[\d.]+ km/h, steer -?[\d.]+, blinker INDICATOR_\w+", vehicle_text[1]), text
     assert re.match(r"  fused objects: \d+; LiDAR: 11520 points", vehicle_text[2]), text
+
+
+def test_json_and_once_show_the_latency_of_each_topic_each_pair_and_the_alert_chain(
+        system: dict[str, AppProcess], module_domain_id: int) -> None:
+    def ready(document: dict[str, Any]) -> bool:
+        chain = document["chain"]
+        return chain is not None and not chain["missing"] and all(
+            hop["latency"] and hop["latency"]["reader"] == hop["reader"] for hop in chain["hops"])
+
+    document = monitor_until(module_domain_id, ready, "the alert chain's every hop with a latency")
+    flow = {f["topic"]: f for f in document["flows"]}
+    for topic, reader in (("VisionTopic", "sensor_fusion"), ("SensorObjects", "collision_avoidance"),
+                          ("AlertTopic", "hmi"), ("rt/LidarTopic", "sensor_fusion")):
+        figure = flow[topic]["latency"][reader]
+        assert 0 < figure["p50_ms"] <= figure["p99_ms"] and figure["samples"] > 0, (topic, figure)
+        assert figure["clock"] == "shared", (topic, figure)  # one host
+    measured = {(pair["topic"], pair["writer"], pair["reader"]): pair for pair in document["latencies"]}
+    assert {("VisionTopic", "vision", "sensor_fusion"), ("rt/LidarTopic", "lidar", "sensor_fusion"),
+            ("SensorObjects", "sensor_fusion", "collision_avoidance"), ("AlertTopic", "collision_avoidance", "hmi"),
+            ("PlatformStatus", "vehicle_platform", "collision_avoidance")} <= set(measured), sorted(measured)
+    ours = [pair for pair in measured.values() if pair["reader"] in APPLICATIONS]
+    assert all(pair["clock"] == "shared" and pair["writer_host"] == pair["reader_host"] == socket.gethostname()
+               for pair in ours), ours
+    chain = document["chain"]
+    hops = [hop["latency"] for hop in chain["hops"]]
+    assert [hop["topic"] for hop in chain["hops"]] == ["VisionTopic", "SensorObjects", "AlertTopic"]
+    assert chain["clock"] == "shared" and chain["p50_ms"] == pytest.approx(sum(hop["p50_ms"] for hop in hops))
+    assert chain["p99_ms"] == pytest.approx(sum(hop["p99_ms"] for hop in hops)) and "sum" in chain["basis"]
+
+    text = run_monitor(module_domain_id, "--once").stdout
+    section = text.split("\nLatency ", 1)[1].split("\n\n", 1)[0]
+    number = r"[\d.]+(e[+-]?\d+)?"
+    for topic, reader in (("VisionTopic", "sensor_fusion"), ("AlertTopic", "hmi")):
+        assert re.search(rf"^  {topic} read by {reader}: p50 {number} ms, p99 {number} ms, \d+ samples$", section,
+                         re.M), section
+    assert re.search(rf"^    VisionTopic: vision -> sensor_fusion: p50 {number} ms", section, re.M), section
+    assert re.search(rf"^  alert chain vision -> hmi: p50 {number} ms, p99 {number} ms", section, re.M), section
+    assert "~" not in section, section  # one host: nothing marked
 
 
 def test_the_lidar_picture_is_a_png_that_changes_at_most_every_2_s(

@@ -10,6 +10,8 @@ screenshot (in its tmp_path):
   above zero, shows every program's health, the matched pairs in the graph and the table; the vehicle's state (speed,
   blinker, fused objects) and the alert raised and cleared as collision avoidance does (a scene whose tall truck comes
   and goes every 6 s);
+- the latency panel: the alert chain's topics per reader and per pair (writer -> reader), in ms, unmarked (one
+  host), and the chain's sum of its hops with what that sum is;
 - an RTI Connector reader requesting RELIABLE from our best-effort vision writer appears with its reason in words,
   offered against requested, as a red edge of the graph, with RTI as its vendor;
 - a domain of 100 participants (one helper process of 100 Cyclone participants) renders within 2 s of opening the
@@ -263,6 +265,52 @@ def test_the_launched_system_shows_its_six_flows_moving_its_health_and_the_vehic
     assert "attention" in raised["alertText"].lower(), raised
     until(browser, lambda page: page_state(page)["alert"] == "clear", TIMEOUT, "the alert cleared", shot)
     until(browser, lambda page: page_state(page)["alert"] == "raised", TIMEOUT, "the alert raised again", shot)
+    screenshot(browser, shot)
+
+
+def latency_state(browser: WebDriver) -> dict[str, Any]:
+    """The latency panel: per topic and per pair the cells' texts, and the alert chain's box."""
+    state: dict[str, Any] = browser.execute_script("""
+        const rows = (id) => [...document.querySelectorAll(`#${id} tbody tr[data-topic]`)]
+            .map((row) => [...[...row.cells].map((cell) => cell.textContent), row.dataset.clock]);
+        const chain = document.getElementById('chain');
+        return {topics: rows('latency-topics'), pairs: rows('latency-pairs'), chainClock: chain.dataset.clock,
+                chainComplete: chain.dataset.complete, chainTotal: document.getElementById('chain-total').textContent,
+                chainHops: document.getElementById('chain-hops').textContent,
+                chainBasis: document.getElementById('chain-basis').textContent};
+    """)
+    return state
+
+
+def test_the_page_shows_the_latency_of_each_topic_each_pair_and_the_alert_chain(
+        system: System, browser: WebDriver, tmp_path: Path) -> None:
+    snapshot_until(system.url, this_system, "the system's programs and flows")
+    shot = tmp_path / "latency.png"
+    browser.get(system.url)
+    exact = r"^\d[\d,]*(\.\d+)? ms$"  # one host: no "~"
+
+    def latencies_shown(page: WebDriver) -> dict[str, Any] | None:
+        state = latency_state(page)
+        topics = {(row[0], row[1]): row for row in state["topics"]}
+        pairs = {(row[0], row[1], row[2]): row for row in state["pairs"]}
+        wanted_topics = [("VisionTopic", "sensor_fusion"), ("SensorObjects", "collision_avoidance"),
+                         ("AlertTopic", "hmi"), ("rt/LidarTopic", "sensor_fusion")]
+        wanted_pairs = [("VisionTopic", "vision", "sensor_fusion"), ("AlertTopic", "collision_avoidance", "hmi")]
+        if not (all(key in topics for key in wanted_topics) and all(key in pairs for key in wanted_pairs)
+                and state["chainComplete"] == "true"):
+            return None
+        return {"state": state, "topics": [topics[key] for key in wanted_topics],
+                "pairs": [pairs[key] for key in wanted_pairs]}
+
+    shown = until(browser, latencies_shown, TIMEOUT, "the latency of the alert chain's topics, pairs and sum", shot)
+    for row in shown["topics"]:  # topic, reader, p50, p99, samples, clock words, data-clock
+        assert re.match(exact, row[2]) and re.match(exact, row[3]) and int(row[4].replace(",", "")) > 0, row
+        assert row[5] == "shared (one host)" and row[6] == "shared", row
+    for row in shown["pairs"]:  # topic, writer, reader, p50, p99, samples, clock words, data-clock
+        assert re.match(exact, row[3]) and re.match(exact, row[4]) and row[7] == "shared", row
+    state = shown["state"]
+    assert re.match(r"^p50 \d[\d,]*(\.\d+)? ms, p99 \d[\d,]*(\.\d+)? ms$", state["chainTotal"]), state
+    assert state["chainClock"] == "shared" and "VisionTopic" in state["chainHops"] and "sum" in state["chainBasis"]
     screenshot(browser, shot)
 
 

@@ -9,9 +9,11 @@ creates and deletes. Each test's applications are stopped before its namespaces 
 from __future__ import annotations
 
 import itertools
+import json
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -352,4 +354,48 @@ def test_camera_frames_go_through_shared_memory_on_their_host_and_over_udp_to_th
     assert f"shared memory: {frames} frames sent, {frames} written on DDS" in publisher.output, publisher.output
     assert "shared memory with publishers on this host" in local.output
     assert "goes over DDS only" not in local.output + remote.output + publisher.output
+    hosts.assert_no_cyclone_lines()
+
+
+def own_host_name(name: str, command: list[str]) -> list[str]:
+    """``command`` run under host name ``name`` (a UTS namespace of its own): the test's network namespaces share
+    this machine's host name, and host names are what discovery and /diagnostics tell hosts apart by."""
+    return ["unshare", "--uts", "sh", "-c", 'hostname "$0" && exec "$@"', name, *command]
+
+
+def test_the_monitor_marks_a_latency_between_two_hosts_as_of_clocks_not_shared(hosts: TwoHosts) -> None:
+    """vision on host A (this machine's host name), sensor_fusion and the monitor on host B (a host name of its
+    own): sensor_fusion's latency of VisionTopic is of A's clock against B's, shown marked, never as if exact."""
+    a, b = hosts.a, hosts.b
+    b_name = f"automotive-b-{os.getpid()}"
+    network = ("--domain", str(hosts.domain_id), "--peers", PEERS, "--interface", b.device)
+    fusion = hosts.start(b, "sensor_fusion", own_host_name(b_name, program_command("sensor_fusion", *network)))
+    hosts.app(a, "vision")
+    fusion.wait_for(r"\[VisionTopic\] reader matched a writer")
+
+    def monitor(*args: str) -> str:
+        result = subprocess.run(["ip", "netns", "exec", b.namespace, *own_host_name(
+            b_name, program_command("monitor", *network, "--wait", "3", *args))],
+            capture_output=True, text=True, timeout=120)
+        assert result.returncode == 0, result.stderr[-3000:]
+        return result.stdout
+
+    deadline = time.monotonic() + 90
+    while True:
+        document = json.loads(monitor("--json"))
+        pair = next((pair for pair in document["latencies"] if (pair["topic"], pair["writer"], pair["reader"])
+                     == ("VisionTopic", "vision", "sensor_fusion")), None)
+        if pair is not None and pair["writer_host"] is not None:
+            break
+        assert time.monotonic() < deadline, json.dumps(document, indent=1)[:6000]
+    assert (pair["clock"], pair["writer_host"], pair["reader_host"]) == ("not shared", socket.gethostname(), b_name)
+    assert pair["samples"] > 0, pair
+    flow = next(flow for flow in document["flows"] if flow["topic"] == "VisionTopic")
+    assert flow["latency"]["sensor_fusion"]["clock"] == "not shared", flow
+    assert document["chain"]["clock"] != "shared", document["chain"]
+    text = monitor("--once")
+    section = text.split("\nLatency ", 1)[1].split("\n\n", 1)[0]
+    assert re.search(r"^    VisionTopic: vision -> sensor_fusion: p50 ~-?[\d.e+-]+ ms, p99 ~-?[\d.e+-]+ ms "
+                     r"\(clock not shared: another host\)", section, re.M), section
+    assert re.search(r"^  VisionTopic read by sensor_fusion: p50 ~", section, re.M), section
     hosts.assert_no_cyclone_lines()

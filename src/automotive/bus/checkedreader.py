@@ -16,6 +16,9 @@ serialized samples instead and, for each one:
 Applications keep calling ``reader.take(N=...)`` and filtering ``isinstance(sample, Type)``; a take never raises for
 what a remote writer sent.
 
+Each take also records the latency of the samples it gives (its one clock read minus each writer's source timestamp,
+per writer participant: :func:`record_latencies`), which /diagnostics reports (automotive.bus.latency.recent).
+
 :meth:`CheckedReader.use_views` makes one reader decode its sequences of fixed-size structs (the vision objects, the
 fused object list) as read-only numpy structured arrays with the generated codec (automotive.cyclone.codecs), without
 one Python object per element; their float fields are checked in bulk (automotive.bus.validation).
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import struct
+import time
 from collections.abc import Callable
 from typing import Any, TypeVar
 
@@ -33,7 +37,7 @@ from cyclonedds.core import InstanceState
 from cyclonedds.qos import Policy
 from cyclonedds.sub import DataReader, InvalidSample
 
-from automotive.bus import badsamples, console, validation
+from automotive.bus import badsamples, console, latency, validation
 from automotive.bus.badsamples import BadSample, BadSampleReporter
 from automotive.cyclone import codec_hook, serdata
 from automotive.cyclone.bounds import type_name
@@ -77,6 +81,7 @@ class WriterNames:
     def __init__(self, reader: DataReader[Any]):
         self.reader = reader
         self._names: dict[int, str] = {}
+        self._writer_participants: dict[int, str] = {}  # writer handle -> its participant's name (latencies)
         self._participants: BuiltinDataReader | None = None
         self._participant_names: dict[Any, str] = {}  # participant key -> name, from the samples taken so far
 
@@ -87,6 +92,24 @@ class WriterNames:
                 self._names.clear()
             text = self._names[handle] = self._look_up(handle)
         return text
+
+    def participant(self, handle: int) -> str:
+        """The name of the participant of a writer (its GUID prefix when it has no name; "unknown" when gone)."""
+        name = self._writer_participants.get(handle)
+        if name is None:
+            if len(self._writer_participants) >= _WRITER_CACHE:
+                self._writer_participants.clear()
+            name = self._writer_participants[handle] = self._participant_of(handle)
+        return name
+
+    def _participant_of(self, handle: int) -> str:
+        try:
+            endpoint = self.reader.get_matched_publication_data(handle)
+        except Exception:  # Cyclone's error, or discovery data it cannot decode
+            endpoint = None
+        if endpoint is None:
+            return "unknown"
+        return self._participant_name(endpoint.participant_key) or format_guid(endpoint.participant_key)
 
     def _look_up(self, handle: int) -> str:
         try:
@@ -131,6 +154,11 @@ class CheckedReader(DataReader[T]):
         self._views_decoder: Decoder | None = None  # use_views()
         super().__init__(*args, **kwargs)
 
+    @property
+    def writer_names(self) -> WriterNames:
+        """The names of this reader's writers and of their participants, as the reader knows them."""
+        return self._writer_names
+
     def use_views(self) -> CheckedReader[T]:
         """Give this reader's samples with their sequences of fixed-size structs as read-only numpy structured
         arrays (``codec.element_dtype(member)``); the type must have a generated codec with such members."""
@@ -157,6 +185,8 @@ class CheckedReader(DataReader[T]):
         else:
             samples = self._checked(fetched)
         console.traffic.count_in(self.topic.name, sum(not isinstance(sample, InvalidSample) for sample in samples))
+        if samples:
+            record_latencies(self.topic.name, samples, self._writer_names)
         return samples
 
     def read(self, N: int = 1, condition: Any = None, instance_handle: int | None = None) -> list[Any]:
@@ -252,6 +282,19 @@ def report_bad_sample(reader: DataReader[Any], writer_names: WriterNames, proble
     reporter = getattr(reader, "reporter", None) or badsamples.reporter()
     sender = "a writer" if writer is None else writer_names.describe(writer)
     reporter.report(reader.topic.get_name(), problem, sender, action)
+
+
+def record_latencies(topic: str, samples: list[Any], writer_names: WriterNames) -> None:
+    """Record the latency of the samples of one take (automotive.bus.latency.recent), per writer participant, with
+    one clock read."""
+    now = time.time_ns()
+    by_writer: dict[int, list[int]] = {}
+    for sample in samples:
+        info = sample.sample_info
+        if info.valid_data:
+            by_writer.setdefault(info.publication_handle, []).append(info.source_timestamp)
+    for handle, stamps in by_writer.items():
+        latency.recent.record(topic, writer_names.participant(handle), stamps, now)
 
 
 def ended_instance(key: Any, info: Any) -> InvalidSample:

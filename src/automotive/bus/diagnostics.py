@@ -18,7 +18,12 @@ Each array holds one DiagnosticStatus, the program's:
 - ``message``: the problems, worst first, in the console's words (``[AlertTopic] reader: no writer matched``); when
   all is well, what the console's status line says (``out VisionTopic 10/s; sample 50: 5 object(s)``);
 - ``values``: samples in and out per second per topic, the matched peers of each endpoint, the status events counted
-  per topic (deadline missed, liveliness changes, samples lost, incompatible QoS), bad samples, RSS and CPU.
+  per topic (deadline missed, liveliness changes, samples lost, incompatible QoS), bad samples, RSS and CPU; and per
+  topic read, the latency of its samples over the last 10 s (automotive.bus.latency.recent: reception minus the
+  writer's source timestamp, as each reader measures it): ``VisionTopic latency p50 ms (last 10 s)``, ``... p99 ms
+  ...``, ``... samples ...`` for all its writers together, and the same keys with ``from <writer participant>`` after
+  the topic for each writer (``VisionTopic from vision latency p50 ms (last 10 s)``). A writer on another host stamps
+  with its own clock: the monitor marks such figures as such.
 
 Its writer is none of the program's endpoints: it is in no status line, no match report and no traffic count, and it
 adds no console line. ``config.diagnosticsInterval`` sets the period (1 s; 0 turns it off).
@@ -40,7 +45,7 @@ from cyclonedds.core import DDSException
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
-from automotive.bus import console
+from automotive.bus import console, latency
 from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.endpoints import Databus
 from automotive.bus.qos import ROS2_DEFAULT_PROFILE, QosProfiles
@@ -247,6 +252,7 @@ class Diagnostics:
                 (f"{topic} incompatible QoS", str(events.count(topic, "requested_incompatible_qos",
                                                                "offered_incompatible_qos"))),
             ]
+        values += latency_values(latency.recent.summaries())
         with self.process.oneshot():
             rss_mb = self.process.memory_info().rss / 1e6
             cpu = self.process.cpu_percent(None)
@@ -256,6 +262,23 @@ class Diagnostics:
         return DiagnosticStatus_(level_=level, name_=program.instance_name, message_=message,
                                  hardware_id_=self.hostname,
                                  values_=[KeyValue_(key_=key, value_=value) for key, value in values])
+
+
+# The keys of the latency values: "<topic> latency p50 ms (last 10 s)", "<topic> from <writer> latency p50 ms ...".
+LATENCY_FROM = " from "
+LATENCY_P50 = f" latency p50 ms (last {latency.WINDOW_S} s)"
+LATENCY_P99 = f" latency p99 ms (last {latency.WINDOW_S} s)"
+LATENCY_SAMPLES = f" latency samples (last {latency.WINDOW_S} s)"
+
+
+def latency_values(summaries: list[latency.LatencySummary]) -> list[tuple[str, str]]:
+    """The latency keys and values of each topic read, and of each of its writers (participants)."""
+    values: list[tuple[str, str]] = []
+    for summary in summaries:
+        subject = summary.topic if summary.writer is None else f"{summary.topic}{LATENCY_FROM}{summary.writer}"
+        values += [(subject + LATENCY_P50, f"{summary.p50_ms:.3f}"), (subject + LATENCY_P99, f"{summary.p99_ms:.3f}"),
+                   (subject + LATENCY_SAMPLES, str(summary.count))]
+    return values
 
 
 def header() -> Header_:

@@ -12,7 +12,9 @@ network options), so it sees what the applications see. It reads:
 - the built-in discovery topics: every participant (its name, vendor, host and process where discovery tells them),
   every writer and reader with its topic, type and QoS;
 - rt/diagnostics, every program's health (automotive.bus.diagnostics): the samples per second of each topic, the age
-  of its last sample, deadline misses, liveliness changes and lost samples as the programs report them;
+  of its last sample, deadline misses, liveliness changes and lost samples as the programs report them, and the
+  latency each reader measures (p50/p99 over 10 s per topic and per writer: shown per topic, per pair and for the
+  alert chain, marked "~" where writer and reader are on different hosts and so do not share a clock);
 - the system's flows with its own best-effort raw readers (automotive.tools.monitoring.probes): each flow's bytes/s,
   samples/s and last sample's age, and the vehicle (the alert and, in redundant mode, its owner; speed, steer,
   blinker; the fused objects; the LiDAR picture), decoding only what it shows. It never reads the camera's frames

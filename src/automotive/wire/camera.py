@@ -30,7 +30,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy
 from cyclonedds.sub import DataReader
 
-from automotive.bus import badsamples, memtune
+from automotive.bus import badsamples, latency, memtune
 from automotive.bus.badsamples import BadSample, BadSampleError
 from automotive.bus.checkedreader import WriterNames, undecodable
 from automotive.bus.errors import ConfigError
@@ -325,6 +325,7 @@ class FrameReader:
         """Take up to ``limit`` samples: ``with reader.take() as frames: ...`` (samples without data are skipped)."""
         lent = self._raw.lend(limit)
         frames: list[Frame] = []
+        stamps: dict[int, list[int]] = {}  # writer -> the source timestamps of its frames (their latency)
         try:
             for sample in lent.samples:
                 if sample.kind is not SampleKind.DATA or self.dropped(sample.writer):
@@ -344,11 +345,15 @@ class FrameReader:
                     continue
                 frame.writer = sample.writer
                 frames.append(frame)
+                stamps.setdefault(sample.writer, []).append(sample.source_timestamp)
         except BaseException:
             for frame in frames:
                 frame.data.release()
             lent.close()
             raise
+        now = time.time_ns()
+        for writer, taken in stamps.items():
+            latency.recent.record(self.reader.topic.get_name(), self._writer_names.participant(writer), taken, now)
         return TakenFrames(frames, lent.close)
 
     def report(self, problem: BadSample, writer: int, action: str = "ignored") -> None:

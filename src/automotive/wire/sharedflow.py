@@ -3,7 +3,8 @@
 :class:`FlowWriter` and :class:`FlowReader` put together what :mod:`automotive.wire.shm` provides for one endpoint of
 an :class:`~automotive.bus.app.Application`: the DDS endpoint with the role's QoS profile (marked with the locality's
 USER_DATA when shared memory is used), the iceoryx2 port, which of the matched peers shared memory serves, the
-deadline of the samples that come through it, and the console's traffic counts. The applications and tools write
+deadline of the samples that come through it, the console's traffic counts and the latency of the samples taken
+(automotive.bus.latency.recent, as the checked readers record theirs). The applications and tools write
 and read serialized samples (CDR, as DDS carries them) through them and never ask which way a sample goes.
 """
 
@@ -18,7 +19,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Qos
 from cyclonedds.sub import DataReader
 
-from automotive.bus import console
+from automotive.bus import console, latency
 from automotive.bus.app import Application
 from automotive.bus.status import EventHook
 from automotive.cyclone import serdata
@@ -231,6 +232,7 @@ class FlowReader(_SharedEnd):
         if lent.samples:
             self.deadline.sample(None)
             console.traffic.count_in(self.topic, len(lent.samples))  # bypass the checked reader: counted here
+            latency.recent.record(self.topic, self.local.shared_writer(), [s.source_timestamp for s in lent.samples])
         return lent
 
     def check_deadline(self) -> None:

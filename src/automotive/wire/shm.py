@@ -50,6 +50,7 @@ from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
 
+from automotive.bus.checkedreader import CheckedReader, WriterNames
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import Properties
 from automotive.wire.rawsample import release_lent_views
@@ -295,6 +296,26 @@ class LocalWriters:
         self.reader = reader
         self.key = key
         self._known: dict[int, bool] = {}  # publication handle (unsigned) -> of our locality
+        self._matched: tuple[int, ...] = ()  # the matched writers when shared_writer last looked
+        self._shared_writer = "unknown"
+        self._names: WriterNames | None = None
+
+    def shared_writer(self) -> str:
+        """The participant name of the writer(s) of this locality (those that send through shared memory), for the
+        latencies of the samples that came that way: names joined by '+' when several; "unknown" when none is known.
+        Looked up again only when the matched writers change."""
+        try:
+            handles = tuple(self.reader.get_matched_publications())
+        except Exception:  # the reader is being deleted
+            return "unknown"
+        if handles != self._matched:
+            self._matched = handles
+            if self._names is None:
+                self._names = self.reader.writer_names if isinstance(self.reader, CheckedReader) else WriterNames(
+                    self.reader)
+            found = sorted({self._names.participant(handle) for handle in handles if self.is_local(handle)})
+            self._shared_writer = "+".join(found) or "unknown"
+        return self._shared_writer
 
     def is_local(self, handle: int) -> bool:
         if self.key is None:

@@ -18,7 +18,13 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from automotive.bus.diagnostics import DIAGNOSTICS_TOPIC
+from automotive.bus.diagnostics import (
+    DIAGNOSTICS_TOPIC,
+    LATENCY_FROM,
+    LATENCY_P50,
+    LATENCY_P99,
+    LATENCY_SAMPLES,
+)
 from automotive.tools.monitoring.rules import EndpointQos, Reason, hints, mismatch_reasons, participant_hint
 
 UNKNOWN = "unknown"
@@ -179,6 +185,63 @@ class Flow:
     incompatible_qos: int
     bytes_per_s: float | None = None  # serialized bytes/s the monitor's own reader takes; None: not read by it
     monitor_rate: float | None = None  # samples/s the monitor's own reader takes; None: not read by it
+    # reader program -> its latency of the topic over the last 10 s (Latency's fields but topic, writer and reader)
+    latency: dict[str, dict[str, Any]] = field(default_factory=dict)
+
+
+# Whether the two ends of a latency share a clock: on one host they do; across hosts each writer stamps with its own
+# clock (a figure then is off by the hosts' clock difference, and is shown marked, never as if exact).
+CLOCK_SHARED, CLOCK_NOT_SHARED, CLOCK_UNKNOWN = "shared", "not shared", "unknown host"
+
+
+@dataclass
+class Latency:
+    """A topic's latency as one reader program measured it over the last 10 s (its /diagnostics): reception minus
+    the writer's source timestamp; from one writer participant (a pair) or from all of them (``writer`` None)."""
+
+    topic: str
+    writer: str | None  # the writer's participant name (several joined by '+': shared memory from two writers)
+    reader: str  # the reader's program (its participant has the same name)
+    p50_ms: float
+    p99_ms: float
+    samples: int  # in the last 10 s
+    clock: str  # CLOCK_SHARED: writer and reader on one host; CLOCK_NOT_SHARED; CLOCK_UNKNOWN: a host not known
+    writer_host: str | None = None
+    reader_host: str | None = None
+
+
+@dataclass
+class ChainHop:
+    topic: str
+    writer: str  # the application that writes it
+    reader: str  # the application that reads it
+    latency: Latency | None  # the reader's figure for the topic (the slowest reader's, when several); None: none
+
+
+CHAIN_HOPS = (("VisionTopic", "vision", "sensor_fusion"), ("SensorObjects", "sensor_fusion", "collision_avoidance"),
+              ("AlertTopic", "collision_avoidance", "hmi"))
+CHAIN_BASIS = ("the sum of the hops' p50 and of their p99 (vision -> sensor_fusion -> collision_avoidance -> hmi), "
+               "each hop from its writer's source timestamp to its reader's take (a wait in the reader's queue "
+               "counts); the time each application takes between its take and its next write is not in it, and a "
+               "sum of p99s is not the p99 of the sum: an estimate, not an end-to-end measurement")
+
+
+@dataclass
+class Chain:
+    """The alert chain from vision to the driver's alert, as the sum of its hops' latencies (CHAIN_BASIS)."""
+
+    hops: list[ChainHop]
+    p50_ms: float | None  # over the hops that have a figure (``missing`` names the others); None: none has
+    p99_ms: float | None
+    clock: str  # CLOCK_SHARED only when every hop's is
+    missing: list[str] = field(default_factory=list)  # the hops' topics without a sample in the last 10 s
+    basis: str = CHAIN_BASIS
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"hops": [{"topic": hop.topic, "writer": hop.writer, "reader": hop.reader,
+                          "latency": None if hop.latency is None else vars(hop.latency)} for hop in self.hops],
+                "p50_ms": self.p50_ms, "p99_ms": self.p99_ms, "clock": self.clock, "missing": self.missing,
+                "basis": self.basis}
 
 
 @dataclass
@@ -249,6 +312,8 @@ class Snapshot:
     flows: list[Flow]
     programs: list[ProgramHealth]
     vehicle: Vehicle = field(default_factory=Vehicle)
+    latencies: list[Latency] = field(default_factory=list)  # per pair: writer participant -> reader program
+    chain: Chain | None = None
 
     def participant(self, key: str) -> Participant | None:
         return next((p for p in self.participants if p.key == key), None)
@@ -269,6 +334,8 @@ class Snapshot:
             "flows": [vars(f) for f in self.flows],
             "programs": [vars(p) for p in self.programs],
             "vehicle": self.vehicle.to_dict(),
+            "latencies": [vars(latency) for latency in self.latencies],
+            "chain": None if self.chain is None else self.chain.to_dict(),
         }
 
     def to_json(self, indent: int | None = 2) -> str:
@@ -367,11 +434,88 @@ def analyse(domain: int, participant_records: Iterable[ParticipantRecord], endpo
             if participant.name == program.name and participant.host in (program.host, UNKNOWN) and (
                     program.pid is None or participant.pid in (program.pid, UNKNOWN)):
                 participant.health = program.level
+    hosts_of: dict[str, set[str]] = {}  # participant name -> the hosts of the participants of that name
+    for participant in participants.values():
+        if participant.host != UNKNOWN:
+            hosts_of.setdefault(participant.name, set()).add(participant.host)
+    measured_latencies = latencies(report_list, hosts_of)
+    found_flows = flows(report_list, moved_ago or {}, measured or {})
+    for item in found_flows:
+        item.latency = {latency.reader: {"p50_ms": latency.p50_ms, "p99_ms": latency.p99_ms,
+                                         "samples": latency.samples, "clock": latency.clock}
+                        for latency in measured_latencies if latency.topic == item.topic and latency.writer is None}
     return Snapshot(domain, time.time() if taken_at is None else taken_at,
                     sorted(participants.values(), key=lambda p: (p.own, p.name, p.key)),
                     sorted(topics.values(), key=lambda t: t.name), endpoints, matches, mismatches, notices,
-                    flows(report_list, moved_ago or {}, measured or {}), sorted(programs, key=lambda p: p.name),
-                    vehicle or Vehicle())
+                    found_flows, sorted(programs, key=lambda p: p.name), vehicle or Vehicle(),
+                    [latency for latency in measured_latencies if latency.writer is not None],
+                    chain(measured_latencies))
+
+
+def clock_of(writer: str | None, reader_host: str, hosts_of: dict[str, set[str]]) -> tuple[str, str | None]:
+    """Whether a writer participant (names joined by '+': several) shares the clock of a reader on ``reader_host``
+    (a writer of a host not known may not), and the writer's host when it is one known host."""
+    names = [name for name in (writer or "").split("+") if name]
+    hosts = set().union(*(hosts_of.get(name, set()) for name in names)) if names else set()
+    writer_host = next(iter(hosts)) if len(hosts) == 1 else None
+    if not names or reader_host == UNKNOWN or not all(hosts_of.get(name) for name in names):
+        return CLOCK_UNKNOWN, writer_host
+    return (CLOCK_SHARED if hosts == {reader_host} else CLOCK_NOT_SHARED), writer_host
+
+
+def latencies(reports: list[ProgramReport], hosts_of: dict[str, set[str]]) -> list[Latency]:
+    """The latencies the programs report (automotive.bus.diagnostics: per topic they read, and per writer), each
+    marked with whether its writer and reader share a clock (``hosts_of``: participant name -> its hosts). A topic's
+    figure over all its writers shares the clock only when each of its writers does."""
+    found: dict[tuple[str, str | None, str], dict[str, float]] = {}
+    hosts: dict[str, str] = {}
+    for report in reports:
+        if report.age_s > STALE_AFTER_S:
+            continue
+        hosts[report.name] = report.host
+        for key, value in report.values:
+            for suffix, name in ((LATENCY_P50, "p50_ms"), (LATENCY_P99, "p99_ms"), (LATENCY_SAMPLES, "samples")):
+                if key.endswith(suffix):
+                    topic, _, writer = key[:-len(suffix)].partition(LATENCY_FROM)  # topic names have no spaces
+                    found.setdefault((topic, writer or None, report.name), {})[name] = _number(value)
+                    break
+    result: list[Latency] = []
+    for (topic, from_writer, reader), figures in sorted(found.items(), key=lambda item: (item[0][0], item[0][2],
+                                                                                           item[0][1] or "")):
+        if not figures.get("samples") or topic == DIAGNOSTICS_TOPIC:  # the reports themselves are no data flow
+            continue
+        reader_host = hosts.get(reader, UNKNOWN)
+        if from_writer is None:
+            writers = [other for (other_topic, other, other_reader) in found
+                       if other_topic == topic and other_reader == reader and other is not None]
+            clocks = {clock_of(other, reader_host, hosts_of)[0] for other in writers} or {CLOCK_UNKNOWN}
+            clock = (CLOCK_NOT_SHARED if CLOCK_NOT_SHARED in clocks else
+                     CLOCK_UNKNOWN if CLOCK_UNKNOWN in clocks else CLOCK_SHARED)
+            writer_host = None
+        else:
+            clock, writer_host = clock_of(from_writer, reader_host, hosts_of)
+        result.append(Latency(topic, from_writer, reader, round(figures.get("p50_ms", 0.0), 3),
+                              round(figures.get("p99_ms", 0.0), 3), int(figures["samples"]), clock, writer_host,
+                              None if reader_host == UNKNOWN else reader_host))
+    return result
+
+
+def chain(measured: list[Latency]) -> Chain:
+    """The alert chain from the readers' figures per topic (the slowest reader of a hop, when several read it:
+    redundant mode's two collision avoidances). A hop without a sample in the window (no alert said: the alert
+    writer writes on a change and while an alert lasts) is named in ``missing``, and the sum is of the others."""
+    hops: list[ChainHop] = []
+    for topic, writer, reader in CHAIN_HOPS:
+        candidates = [latency for latency in measured
+                      if latency.topic == topic and latency.writer is None and latency.reader.startswith(reader)]
+        hops.append(ChainHop(topic, writer, reader, max(candidates, key=lambda found: found.p99_ms, default=None)))
+    known = [hop.latency for hop in hops if hop.latency is not None]
+    missing = [hop.topic for hop in hops if hop.latency is None]
+    clocks = {latency.clock for latency in known}
+    clock = CLOCK_SHARED if not missing and clocks == {CLOCK_SHARED} else (
+        CLOCK_NOT_SHARED if CLOCK_NOT_SHARED in clocks else CLOCK_UNKNOWN)
+    return Chain(hops, round(sum(found.p50_ms for found in known), 3) if known else None,
+                 round(sum(found.p99_ms for found in known), 3) if known else None, clock, missing)
 
 
 def _health(report: ProgramReport) -> ProgramHealth:

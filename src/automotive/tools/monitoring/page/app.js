@@ -198,6 +198,58 @@ function renderFlows(flows) {
   }), "no flow reported yet", 10);
 }
 
+// A latency in ms; "~" in front when writer and reader do not share a clock (another host, or a host not known).
+function latencyText(value, clock) {
+  if (value === null || value === undefined) return DASH;
+  return `${clock === "shared" ? "" : "~"}${number(value, 2)} ms`;
+}
+
+function clockWords(clock) {
+  if (clock === "shared") return "shared (one host)";
+  if (clock === "not shared") return "not shared: another host";
+  return "host not known";
+}
+
+function latencyCells(figure) {
+  const p50 = cell(latencyText(figure.p50_ms, figure.clock), "number p50");
+  const p99 = cell(latencyText(figure.p99_ms, figure.clock), "number p99");
+  for (const td of [p50, p99]) if (figure.clock !== "shared") td.classList.add("unsynced");
+  return [p50, p99, numberCell(figure.samples, 0), cell(clockWords(figure.clock), "clock")];
+}
+
+function renderLatency(snapshot) {
+  const topicRows = [];
+  for (const f of snapshot.flows || []) {
+    for (const [reader, figure] of Object.entries(f.latency || {})) {
+      topicRows.push(row([cell(name(f.topic)), cell(name(reader)), ...latencyCells(figure)],
+        {"data-topic": cut(f.topic, TITLE_CUT), "data-reader": cut(reader, TITLE_CUT), "data-clock": figure.clock}));
+    }
+  }
+  fill("latency-topics", topicRows, "no program reports a latency yet", 6);
+  fill("latency-pairs", (snapshot.latencies || []).map((l) => row([cell(name(l.topic)), cell(name(l.writer)),
+    cell(name(l.reader)), ...latencyCells(l)], {"data-topic": cut(l.topic, TITLE_CUT),
+    "data-writer": cut(l.writer, TITLE_CUT), "data-reader": cut(l.reader, TITLE_CUT), "data-clock": l.clock})),
+  "no program reports a latency yet", 7);
+  const chain = snapshot.chain;
+  const box = document.getElementById("chain");
+  const total = document.getElementById("chain-total");
+  if (!chain) {
+    box.dataset.clock = "unknown";
+    total.textContent = DASH;
+    return;
+  }
+  box.dataset.clock = chain.clock;
+  const missing = chain.missing || [];
+  total.textContent = chain.p50_ms === null || chain.p50_ms === undefined ? "unknown (no hop reports)"
+    : `p50 ${latencyText(chain.p50_ms, chain.clock)}, p99 ${latencyText(chain.p99_ms, chain.clock)}` +
+      (missing.length ? `, without ${missing.join(", ")} (no sample in the last 10 s)` : "");
+  box.dataset.complete = missing.length ? "false" : "true";
+  document.getElementById("chain-hops").textContent = "(" + (chain.hops || []).map((hop) =>
+    `${cut(hop.topic, NAME_CUT)} ` + (hop.latency ? `${latencyText(hop.latency.p50_ms, hop.latency.clock)}/` +
+      `${latencyText(hop.latency.p99_ms, hop.latency.clock)}` : DASH)).join(" + ") + ")";
+  document.getElementById("chain-basis").textContent = chain.basis || "";
+}
+
 function endpointOwners(snapshot) {
   const owner = new Map();
   for (const e of snapshot.endpoints || []) owner.set(e.key, e.participant);
@@ -384,6 +436,7 @@ function render(snapshot) {
   renderVehicle(snapshot.vehicle);
   renderPrograms(snapshot.programs);
   renderFlows(snapshot.flows);
+  renderLatency(snapshot);
   renderAnalysis(snapshot);
   renderMatches(snapshot);
   renderParticipants(snapshot);
