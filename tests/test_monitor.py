@@ -474,9 +474,10 @@ def system(module_domain_id: int) -> Iterator[dict[str, AppProcess]]:
         runner.stop_all()
 
 
-def run_monitor(domain: int, *args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
+def run_monitor(domain: int, *args: str, cwd: Path = ROOT,
+                env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run(program_command("monitor", "--domain", str(domain), "--wait", WAIT_S, *args), cwd=cwd,
-                          capture_output=True, text=True, timeout=120)
+                          capture_output=True, text=True, timeout=120, env=env)
 
 
 def monitor_until(domain: int, check: Callable[[dict[str, Any]], bool], what: str,
@@ -752,6 +753,15 @@ def test_once_prints_readable_text_from_an_empty_directory(system: dict[str, App
                      "sensor_fusion", text), text
     assert re.search(r"(?m)^  vision: (OK|WARN) \(", text), text
     assert list(tmp_path.iterdir()) == []  # nothing written where it ran
+    # Issue 38: a one-shot command prints its answer only (no match or "stopped" lines); -v gives the rest. (The
+    # tests set AUTOMOTIVE_LOG_LEVEL=debug for every program: a user's shell does not.)
+    users = {key: value for key, value in os.environ.items() if key != "AUTOMOTIVE_LOG_LEVEL"}
+    for flag in ("--once", "--json"):
+        quiet = run_monitor(module_domain_id, flag, cwd=tmp_path, env=users)
+        assert quiet.returncode == 0, quiet.stderr[-3000:]
+        assert all(" WARNING: " in line for line in quiet.stderr.splitlines()), quiet.stderr[-3000:]
+    verbose = run_monitor(module_domain_id, "--once", "-v", cwd=tmp_path, env=users)
+    assert "monitor: stopped" in verbose.stderr, verbose.stderr
 
 
 # -- safe and bounded -------------------------------------------------------------------------------------------------

@@ -37,12 +37,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import sys
 import time
 from typing import TextIO
 
 from automotive.bus.app import Application, build_parser, run
 from automotive.bus.cli import EXIT_BAD_INPUT
+from automotive.bus.console import LOG_LEVEL_VARIABLE
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.tools.monitoring.discovery import DomainView
@@ -199,6 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     if problem:  # before the domain is joined
         print(f"{parser.prog}: {problem}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    if (parsed.once or parsed.json) and not parsed.verbose:  # a one-shot answer only: its log (matches, "stopped")
+        os.environ.setdefault(LOG_LEVEL_VARIABLE, "warning")  # with -v, or as the user's variable says
     out = sys.stdout
     # The report is stdout's; the program's log (and any stray print) goes to stderr, so that --json's stdout is one
     # JSON document whatever the log level.
