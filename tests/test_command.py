@@ -174,3 +174,22 @@ def test_a_launcher_stopped_while_its_applications_start_ends_cleanly(tmp_path: 
     summary = out.split("how each application ended:")[1]
     assert summary.count("stopped on SIGTERM, exit code 0") == 2, out
     assert "Traceback" not in out and "killed" not in out, out
+
+
+@pytest.mark.parametrize("args", EVERY_COMMAND, ids=" ".join)
+def test_help_says_what_a_user_does(args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 38: --help is a short summary, the options and examples as typed, not the module's design notes."""
+    with pytest.raises(SystemExit) as ended:
+        command.main([*args, "--help"])
+    assert ended.value.code == 0
+    text = capsys.readouterr().out
+    for internal in ("``", ":class:", ":mod:", "python -m", "automotive.tools.", "automotive.wire.", "automotive.bus.",
+                     "automotive.apps."):
+        assert internal not in text, f"{internal!r} in:\n{text}"
+    if args[0] == "shape-main":  # the OMG suite's own menu, as every vendor's shape application prints it
+        return
+    description = text.split("\n\n")[1]  # after the usage
+    assert len(description.splitlines()) <= 8, description
+    if args[0] in ("run", "record", "launch", "lidar-view", "shapes-demo", "monitor"):
+        examples = text.split("examples:\n", 1)[1]
+        assert examples.startswith(f"  automotive {' '.join(args)}"), text

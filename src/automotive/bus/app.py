@@ -96,7 +96,13 @@ def build_parser(name: str, description: str, add_arguments: ArgumentAdder | Non
                  command: str | None = None) -> argparse.ArgumentParser:
     """The program's parser; its usage and hints name it as the user typed it (``command``: its own command, by
     default the application's console script)."""
-    parser = ArgumentParser(prog=command_name(command or application_command(name)), description=description)
+    prog = command_name(command or application_command(name))
+    # An application's examples (a tool's own come from its docstring: automotive.bus.cli.user_help).
+    examples = None if command is not None else (
+        f"examples:\n  {prog:<38} on this host, with the shipped properties\n"
+        f"  {prog + ' --domain 7 -v':<38} on domain 7, every sample on the console\n"
+        f"  {prog + ' -D config.KEY=VALUE':<38} one property changed (automotive config export DIR: all, to edit)")
+    parser = ArgumentParser(prog=prog, description=description, epilog=examples)
     parser.add_argument("--properties", type=input_file, default=None,
                         help=f"properties file (default: the shipped properties/{name}.properties; "
                              "automotive config export DIR writes an editable copy)")

@@ -18,11 +18,13 @@ import argparse
 import errno
 import faulthandler
 import os
+import re
 import signal
 import socket
 import stat
 import sys
 import tempfile
+import textwrap
 import threading
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -153,6 +155,12 @@ class ArgumentParser(argparse.ArgumentParser):
     ``--version`` (:mod:`automotive.bus.version`) on every program that has ``--help``."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
+        description = kwargs.get("description")
+        if isinstance(description, str) and "\n\n" in description.strip():  # a module's docstring: its user part
+            kwargs["description"], examples = user_help(description, kwargs.get("prog") or "")
+            epilog = "\n\n".join(part for part in (examples, kwargs.get("epilog") or "") if part)
+            kwargs["epilog"] = epilog or None
+            kwargs["formatter_class"] = argparse.RawDescriptionHelpFormatter
         super().__init__(*args, **kwargs)
         if self.add_help:
             from automotive.bus.version import add_version_option
@@ -162,6 +170,40 @@ class ArgumentParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: {message} ({self.prog} --help shows the usage)", file=sys.stderr)
         sys.exit(EXIT_BAD_INPUT)
+
+
+# What a docstring holds for its maintainers, not for a user's --help: RST roles and literals, module paths.
+_ROLE = re.compile(r":(?:mod|class|func|meth|attr|data):`~?([^`]+)`")
+_LITERAL = re.compile(r"``([^`]+)``")
+_MODULE_NOTE = re.compile(r"\s*\((?:see |in |by )?automotive\.[\w.]+(?:[;,][^()]*)?\)|\bautomotive\.(?:\w+\.)+\w+")
+_COMMAND_LINE = re.compile(r"^\s{2,}(automotive\b|scripts/|python -m automotive)")
+HELP_WIDTH = 100
+
+
+def user_help(docstring: str, prog: str) -> tuple[str, str]:
+    """A program's module docstring as its --help says it: the first paragraph (what the program does), its
+    "Exit codes" paragraph, and its example command lines (as the user types them: ``python -m automotive.tools.X``
+    becomes the program's own name ``prog``); the design notes stay in the code."""
+    paragraphs = [part.strip("\n") for part in re.split(r"\n\s*\n", textwrap.dedent(docstring).strip())]
+
+    def plain(text: str) -> str:
+        text = _ROLE.sub(lambda match: match[1].rsplit(".", 1)[-1], text)
+        text = _LITERAL.sub(r"\1", text)
+        return re.sub(r"\s+", " ", _MODULE_NOTE.sub("", text)).strip()
+
+    def filled(text: str) -> str:
+        return textwrap.fill(plain(text), HELP_WIDTH)
+
+    prose = [part for part in paragraphs if not _COMMAND_LINE.match(part)]
+    summary = [filled(prose[0])] if prose else []
+    summary += [filled(part) for part in prose[1:] if part.startswith("Exit codes")]
+    examples = []
+    for part in paragraphs:
+        for line in part.splitlines():
+            if _COMMAND_LINE.match(line):
+                line = re.sub(r"python -m automotive\.[\w.]+", prog, line.strip()) if prog else line.strip()
+                examples.append("  " + _MODULE_NOTE.sub("", _LITERAL.sub(r"\1", line)).rstrip())
+    return "\n\n".join(summary), ("examples:\n" + "\n".join(examples)) if examples else ""
 
 
 def domain_id(text: str) -> int:

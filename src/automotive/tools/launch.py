@@ -70,6 +70,7 @@ from automotive.bus.cli import (
     on_signals,
     output_folder_problem,
     stop_dumping_stacks,
+    user_help,
 )
 from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE
 from automotive.bus.ports import check_domain_id
@@ -997,7 +998,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Start the automotive applications together and stop them together "
                     f"(`{PROG} stop` stops a running launcher, `{PROG} status` shows it).",
-        epilog=f"applications: {', '.join(APPS)}")
+        epilog=user_help(__doc__ or "", PROG)[1] + f"\n\napplications: {', '.join(APPS)}")
     parser.add_argument("names", nargs="*", metavar="APP", help="applications to start (default: all)")
     parser.add_argument("--except", dest="exclude", action="append", default=[], metavar="A,B",
                         help="applications not to start (comma-separated, repeatable)")

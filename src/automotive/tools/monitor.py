@@ -187,10 +187,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"the discovery window before the first report (default {DEFAULT_WAIT_S:g} s)")
 
 
-DESCRIPTION = ("Who talks to whom on the domain and why a writer and a reader do not match, on a live page (by default "
-               f"http://{DEFAULT_BIND}:{DEFAULT_PORT}/). --once prints it as text and exits, --json as one JSON "
-               "document, --text prints the text again whenever the graph, the matches or a program's health change. "
-               "Reads discovery, rt/diagnostics and the small flows: it writes no data.")
+DESCRIPTION = __doc__ or ""  # --help: its first paragraph and its examples (automotive.bus.cli.user_help)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,5 +1,9 @@
 """Recorder: every flow of the running system, as received, into an MCAP file (the format of rosbag2 and Foxglove).
 
+    automotive record -o drive.mcap                                   every topic, until Ctrl-C
+    automotive record -o alerts.mcap --topics AlertTopic,VisionTopic --duration 30
+    automotive record --recover drive.mcap                            a killed recorder's file, made readable
+
 Data flow:  every topic of the system and every program's health, rt/diagnostics (automotive.tools.flows; --topics to
 choose), each read with the reader side of its writer's QoS profile and a history that keeps every sample  -->
 serialized samples, never deserialized (automotive.wire.rawsample)  -->  a bounded queue  -->  the writer thread:
