@@ -38,9 +38,9 @@ slowest of its 10 round trips, so the C p99 shown is nearer the true 90th-95th p
 
 The applications run as the launcher runs them: at a modest real-time priority with their memory locked
 (config.realtimePriority, config.lockMemory: automotive.bus.realtime; --realtime-priority, --no-lock-memory change it),
-and ddsperf at the same priority (``chrt``), where this process is permitted. --busy keeps one core busy for the whole
-run, the C reference included: a child process that spins, started before the applications and stopped after
-ddsperf.
+and ddsperf at the same priority (``chrt``; --c-priority default: at the default), where this process is permitted.
+--busy keeps one core busy for the whole run, the C reference included: a child process that spins, started before the
+applications and stopped after ddsperf.
 
 Goals, in one run (issue 37): quiet, ``chain_vs_c`` <= 3, and alert p99 <= 2.0 ms where the C chain's p99 is under 0.5
 ms; --busy, alert p99 <= 5.0 ms and ``chain_vs_c`` <= 5. Each is printed as met or not. Vision samples hold at most 10
@@ -227,13 +227,15 @@ class RealtimeChoice:
     priority: int = REALTIME_PRIORITY
     lock_memory: bool = True
     permitted: bool = True  # this process may raise ddsperf to the priority
+    c_same: bool = True  # ddsperf at the applications' priority (False: at the default, as before issue 37)
 
     def settings(self) -> list[str]:
         return ["-D", f"{PRIORITY_KEY}={self.priority}", "-D", f"{LOCK_MEMORY_KEY}={str(self.lock_memory).lower()}"]
 
     def c_prefix(self) -> list[str]:
         chrt = shutil.which("chrt")
-        return [chrt, "--fifo", str(self.priority)] if self.priority and self.permitted and chrt else []
+        return [chrt, "--fifo", str(self.priority)] if self.priority and self.permitted and self.c_same and chrt \
+            else []
 
     def describe(self) -> str:
         priority = (f"SCHED_FIFO {self.priority}" + ("" if self.permitted else " (not permitted here)")
@@ -398,6 +400,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--realtime-priority", type=int, default=REALTIME_PRIORITY, metavar="N",
                         help=f"the applications' {PRIORITY_KEY} (default {REALTIME_PRIORITY}, as the launcher sets it; "
                              "0: the default priority); ddsperf runs at the same")
+    parser.add_argument("--c-priority", choices=["same", "default"], default="same",
+                        help="ddsperf at the applications' priority (same, the default) or at the default priority")
     parser.add_argument("--no-lock-memory", action="store_true",
                         help=f"the applications without {LOCK_MEMORY_KEY} (the launcher sets it)")
     add_domain_option(parser, 86, "DDS domain id")
@@ -422,7 +426,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.c_rate is None:
         args.c_rate = max(1, round(1000 / args.vision_interval))
     realtime = RealtimeChoice(args.realtime_priority, not args.no_lock_memory,
-                              not args.realtime_priority or priority_problem(args.realtime_priority) is None)
+                              not args.realtime_priority or priority_problem(args.realtime_priority) is None,
+                              args.c_priority == "same")
     # --busy: the spinner runs from before the applications until after ddsperf, whatever ends the run.
     spinner = Child("busy", [sys.executable, "-c", SPINNER]) if args.busy else None
     try:
@@ -452,7 +457,7 @@ def report(args: argparse.Namespace, sensor_counts: list[int], object_counts: li
     print(f"sensor-to-alert latency, sensor fusion in {args.mode} mode, loopback, {os.cpu_count()} CPU(s), "
           f"load average {os.getloadavg()[0]:.1f}{', one core kept busy (--busy)' if args.busy else ''}; "
           f"{realtime.describe()}; C: ddsperf at {args.c_rate} Hz"
-          f"{' at the same priority' if realtime.c_prefix() else ''}; ms")
+          f"{' at the same priority' if realtime.c_prefix() else ' at the default priority'}; ms")
     for result in results:
         print()
         print(f"{result.sensors} vision sensor(s) x {1000 / args.vision_interval:g} Hz, {result.objects} objects a "
