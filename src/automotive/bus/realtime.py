@@ -52,6 +52,8 @@ def priority_problem(priority: int) -> str | None:
     """Why this process may not run threads at SCHED_FIFO ``priority`` (None: it may). Tried on the calling thread,
     which goes back to the default policy at once: the kernel's verdict, whatever grants it (root, CAP_SYS_NICE,
     RLIMIT_RTPRIO, a cgroup's real-time budget)."""
+    if not hasattr(os, "sched_setscheduler"):  # Linux's; elsewhere not offered
+        return f"{PRIORITY_KEY}={priority} not applied: not supported on this system; running at the default priority"
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
     except PermissionError:
@@ -82,6 +84,8 @@ def _has_capability(bit: int) -> bool:
 def lock_memory() -> str | None:
     """Lock the process's pages in RAM (see the module's docstring); None when done, else the one line saying why
     not."""
+    if not hasattr(resource, "RLIMIT_MEMLOCK"):
+        return f"{LOCK_MEMORY_KEY}=true not applied: not supported on this system; memory not locked"
     limit = resource.getrlimit(resource.RLIMIT_MEMLOCK)[0]
     if not _has_capability(_CAP_IPC_LOCK) and limit != resource.RLIM_INFINITY:
         return (f"{LOCK_MEMORY_KEY}=true not applied: not permitted (needs root, CAP_IPC_LOCK or an unlimited "
