@@ -13,13 +13,14 @@ import signal
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from apprunner import DEFAULT_SIGINT, signal_state
 
-from automotive.bench import soak
+from automotive.bench import alert_latency, soak
 from automotive.tools import netlab
 from automotive.tools.children import Child, work_folder
 
@@ -212,8 +213,41 @@ def test_alert_latency_too_short_says_so_and_leaves_no_folder(tmpdir_of_run: Pat
                 "--domain", str(domain_id), tmpdir=tmpdir_of_run).stdout.splitlines()
     assert any(line.startswith("  too short to judge: the goals need at least 100 alerts (this run: ")
                for line in out), "\n".join(out)
-    assert not any(line.startswith("  goal:") for line in out)
+    assert not any(line.startswith("  goal") for line in out)
     assert out[-1].startswith("alert_p99_ms=")
+    assert left_in(tmpdir_of_run) == []
+
+
+def spinners_of(tmpdir: Path) -> list[int]:
+    """The --busy spinners started by a benchmark run with this TMPDIR (their environment says so)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        try:
+            if (entry.name.isdigit() and alert_latency.SPINNER in (entry / "cmdline").read_text()
+                    and f"TMPDIR={tmpdir}\0" in (entry / "environ").read_text()):
+                found.append(int(entry.name))
+        except OSError:
+            continue  # ended meanwhile, or not ours to read
+    return found
+
+
+def test_alert_latency_busy_spins_for_the_whole_run_and_stops_the_spinner(tmpdir_of_run: Path, domain_id: int,
+                                                                         started: list[Child]) -> None:
+    child = Child("alert_latency", [sys.executable, "-m", "automotive.bench.alert_latency", "--busy", "--sensors",
+                                    "1", "--objects", "2", "--window", "1", "--c-seconds", "1", "--domain",
+                                    str(domain_id)], env=bench_env(tmpdir_of_run))
+    started.append(child)
+    deadline = time.monotonic() + START_TIMEOUT_S
+    while not spinners_of(tmpdir_of_run):  # started before the applications
+        assert child.poll() is None and time.monotonic() < deadline, child.output
+        time.sleep(0.1)  # polling /proc: nothing to wait on
+    child.wait_for("measuring", timeout=START_TIMEOUT_S)
+    assert len(spinners_of(tmpdir_of_run)) == 1  # still spinning while the chain runs
+    assert child.wait_exit(timeout=RUN_TIMEOUT_S) == 0, child.output
+    out = child.lines
+    assert any(line.startswith("sensor-to-alert") and "one core kept busy (--busy)" in line for line in out), out
+    assert out[-1].startswith("alert_p99_ms=")
+    assert spinners_of(tmpdir_of_run) == []
     assert left_in(tmpdir_of_run) == []
 
 

@@ -192,6 +192,20 @@ def test_a_uri_choosing_the_network_keeps_the_tuning_and_is_named() -> None:
     assert layering.network.describe() == "as your CYCLONEDDS_URI chooses"
 
 
+def test_the_receive_thread_priority_is_cyclones_thread_setting_and_a_uri_setting_threads_replaces_it() -> None:
+    # automotive.bus.realtime: Cyclone's receive thread at SCHED_FIFO N, through Cyclone's own configuration.
+    assert "<Threads>" not in NetworkConfig().cyclone_xml()
+    ours = NetworkConfig(receive_thread_priority=7).cyclone_xml()
+    assert ('<Threads><Thread name="recv"><Scheduling><Class>realtime</Class><Priority>7</Priority></Scheduling>'
+            "</Thread></Threads>") in ours
+    user = '<Threads><Thread name="recv"><Scheduling><Class>timeshare</Class></Scheduling></Thread></Threads>'
+    layering = NetworkConfig(receive_thread_priority=7).layered(read_user_config(user, 0))
+    assert layering.notice is not None and "Threads/Thread, which replaces the applications' setting" in \
+        layering.notice
+    ours, theirs = layering.network.cyclone_xml().split(",", 1)
+    assert "<Threads>" not in ours and "timeshare" in theirs
+
+
 def test_an_explicit_network_choice_takes_the_network_out_of_the_uri() -> None:
     uri = LOOPBACK_AND_PEER + "<General><AllowMulticast>false</AllowMulticast></General>" + tracing(Path("/t.log"))
     layering = NetworkConfig.from_settings(interface="lo").layered(read_user_config(uri, 0),

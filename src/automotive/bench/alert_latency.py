@@ -5,6 +5,8 @@ taking the command, through the real applications in event mode, next to a C cha
     automotive bench alert-latency --sensors 1 --objects 2 --window 30 --png latency.png
     automotive bench alert-latency --mode periodic          sensor fusion as the original: a list every 100 ms
     automotive bench alert-latency --vision-interval 10     the same chain kept warm: a vision sample every 10 ms
+    automotive bench alert-latency --sensors 1 --objects 2 --busy    one core kept busy by another process
+    automotive bench alert-latency --realtime-priority 0 --no-lock-memory    the applications as before issue 37
 
 For each configuration: hmi (console), vehicle_platform, collision_avoidance, sensor_fusion (config.mode=event) and N
 vision processes (config.sensorId 1..N, 10 Hz each, or --vision-interval) run on loopback in their own DDS domain,
@@ -34,13 +36,19 @@ wake-up of an idle process.
 ddsperf prints its percentiles once a second, and the median of those is taken: at 10 Hz a second's "99%" is the
 slowest of its 10 round trips, so the C p99 shown is nearer the true 90th-95th percentile (C looks faster, not slower).
 
-Goals (on a quiet machine): whole chain p99 <= 2 ms with small lists and <= 3 ms with full ones; no hop above
-10x its C counterpart. Vision samples hold at most 10 objects (Vision::VisionSensor's bound); sensor fusion in event
-mode lists the objects of the samples taken at once, so lists stay small unless it falls behind (the mean list size is
-printed). The goals are p99s, judged over at least 100 alerts (a p99 of fewer is only their slowest): a
-configuration with fewer prints its figures and "too short to judge" (one sensor at 10 Hz writes 5 tall samples a
-second: the default --window of 30 s gives about 150). The last line is ``alert_p99_ms=<x> chain_vs_c=<ratio>`` (of
-the last configuration run).
+The applications run as the launcher runs them: at a modest real-time priority with their memory locked
+(config.realtimePriority, config.lockMemory: automotive.bus.realtime; --realtime-priority, --no-lock-memory change it),
+and ddsperf at the same priority (``chrt``; --c-priority default: at the default), where this process is permitted.
+--busy keeps one core busy for the whole run, the C reference included: a child process that spins, started before the
+applications and stopped after ddsperf.
+
+Goals, in one run (issue 37): quiet, ``chain_vs_c`` <= 3, and alert p99 <= 2.0 ms where the C chain's p99 is under 0.5
+ms; --busy, alert p99 <= 5.0 ms and ``chain_vs_c`` <= 5. Each is printed as met or not. Vision samples hold at most 10
+objects (Vision::VisionSensor's bound); sensor fusion in event mode lists the objects of the samples taken at once, so
+lists stay small unless it falls behind (the mean list size is printed). The goals are p99s, judged over at least 100
+alerts (a p99 of fewer is only their slowest): a configuration with fewer prints its figures and "too short to judge"
+(one sensor at 10 Hz writes 5 tall samples a second: the default --window of 30 s gives about 150). The last line is
+``alert_p99_ms=<x> chain_vs_c=<ratio>`` (of the last configuration run).
 """
 
 from __future__ import annotations
@@ -70,8 +78,10 @@ from automotive.bus.cli import (
 from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
 from automotive.bus.ports import MAX_PARTICIPANTS
+from automotive.bus.realtime import LOCK_MEMORY_KEY, MAX_PRIORITY, PRIORITY_KEY, priority_problem
 from automotive.cyclone.codecs import codec_for
 from automotive.tools.children import Child, program_command, stop_all, work_folder
+from automotive.tools.launch import REALTIME_PRIORITY
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, IndicatorStatusEnum, POSIXTimestamp
 from automotive.types.Platform import PlatformControl
@@ -88,6 +98,11 @@ HOPS = ("vision -> fusion", "fusion -> collision", "collision -> hmi", "alert to
 PARTS = ("vision -> fusion: transport", "fusion: work", "fusion -> collision: transport", "collision: work",
          "collision -> hmi: transport")
 MIN_ALERTS_TO_JUDGE = 100  # the goals are p99s: of fewer samples, a p99 is their slowest
+# Issue 37's goals: quiet, the alert p99 within 3x the C chain's, and under 2 ms where the C chain's p99 is under
+# 0.5 ms; with one core kept busy, within 5x and under 5 ms.
+QUIET_RATIO_GOAL, QUIET_P99_GOAL_MS, QUIET_C_P99_BELOW_MS = 3.0, 2.0, 0.5
+BUSY_RATIO_GOAL, BUSY_P99_GOAL_MS = 5.0, 5.0
+SPINNER = "while True: pass"  # --busy: one core's worth of work in another process
 C_HOPS = {"vision -> fusion": "vision", "fusion -> collision": "list", "collision -> hmi": "alert",
           "command hop": "command"}
 # ddsperf's lines: "... size 300 mean 157.210us min 47.028us 50% 77.071us 90% 214.794us 99% 1872.328us max ..."
@@ -205,21 +220,45 @@ def follow(processes: dict[str, Process], window_start_ns: int, window_end_ns: i
     return hops, tall_samples, lost, statistics.mean(list_sizes) if list_sizes else 0.0
 
 
+@dataclass(frozen=True)
+class RealtimeChoice:
+    """The applications' real-time settings (automotive.bus.realtime) and the prefix that runs ddsperf alike."""
+
+    priority: int = REALTIME_PRIORITY
+    lock_memory: bool = True
+    permitted: bool = True  # this process may raise ddsperf to the priority
+    c_same: bool = True  # ddsperf at the applications' priority (False: at the default, as before issue 37)
+
+    def settings(self) -> list[str]:
+        return ["-D", f"{PRIORITY_KEY}={self.priority}", "-D", f"{LOCK_MEMORY_KEY}={str(self.lock_memory).lower()}"]
+
+    def c_prefix(self) -> list[str]:
+        chrt = shutil.which("chrt")
+        return [chrt, "--fifo", str(self.priority)] if self.priority and self.permitted and self.c_same and chrt \
+            else []
+
+    def describe(self) -> str:
+        priority = (f"SCHED_FIFO {self.priority}" + ("" if self.permitted else " (not permitted here)")
+                    if self.priority else "default priority")
+        return f"applications at {priority}, memory {'locked' if self.lock_memory else 'not locked'}"
+
+
 def run_one(sensors: int, objects: int, window: float, domain: int, timeout: float,
-            log_dir: Path | None, mode: str = "event", vision_interval_ms: int = 100) -> Result:
+            log_dir: Path | None, mode: str = "event", vision_interval_ms: int = 100,
+            realtime: RealtimeChoice = RealtimeChoice()) -> Result:
     # The vision data and the status records; removed at the end, also on an error, Ctrl-C or SIGTERM (which ends the
     # run as Ctrl-C does, the applications stopped first). --log-dir gets copies.
     with work_folder("bench-alert-latency-") as workdir:
-        return measure(sensors, objects, window, domain, timeout, log_dir, mode, vision_interval_ms, workdir)
+        return measure(sensors, objects, window, domain, timeout, log_dir, mode, vision_interval_ms, workdir, realtime)
 
 
 def measure(sensors: int, objects: int, window: float, domain: int, timeout: float, log_dir: Path | None, mode: str,
-            vision_interval_ms: int, workdir: Path) -> Result:
+            vision_interval_ms: int, workdir: Path, realtime: RealtimeChoice = RealtimeChoice()) -> Result:
     env = dict(os.environ)
     env["CYCLONEDDS_URI"] = NetworkConfig(max_participants=min(MAX_PARTICIPANTS, max(100, sensors + 20))).cyclone_xml()
     csv = workdir / "vision.csv"
     vision_csv(csv, objects)
-    common = ["--domain", str(domain), "-D", "config.matchReport=0"]
+    common = ["--domain", str(domain), "-D", "config.matchReport=0", *realtime.settings()]
     processes: dict[str, Process] = {}
     try:
         processes["hmi"] = Process("hmi", "hmi", [*common, "--ui", "console"], env, workdir)
@@ -282,16 +321,19 @@ def serialized_sizes(objects: int, list_objects: int) -> dict[str, int]:
     return sizes
 
 
-def ddsperf_one_way(size: int, seconds: int, domain: int, rate_hz: int) -> tuple[float, float, float] | None:
+def ddsperf_one_way(size: int, seconds: int, domain: int, rate_hz: int,
+                    prefix: list[str] | None = None) -> tuple[float, float, float] | None:
     """C one-way latency (ms: p50, p99, max) at ``size`` bytes, ``rate_hz`` round trips a second: ddsperf's round
-    trip / 2; None without ddsperf."""
+    trip / 2; None without ddsperf. ``prefix``: what runs both ddsperf processes (``chrt --fifo 10``)."""
     ddsperf = shutil.which("ddsperf")
     if ddsperf is None:
         return None
     env = dict(os.environ, CYCLONEDDS_URI=DDSPERF_URI)
-    pong = Child("ddsperf-pong", [ddsperf, "-i", str(domain), "-D", str(seconds + 5), "pong", "waitset"], env=env)
-    ping = Child("ddsperf-ping", [ddsperf, "-X", "-i", str(domain), "-D", str(seconds + 1), "ping", f"{rate_hz}Hz",
-                                  "size", str(size), "waitset"], env=env)
+    prefix = prefix or []
+    pong = Child("ddsperf-pong", [*prefix, ddsperf, "-i", str(domain), "-D", str(seconds + 5), "pong", "waitset"],
+                 env=env)
+    ping = Child("ddsperf-ping", [*prefix, ddsperf, "-X", "-i", str(domain), "-D", str(seconds + 1), "ping",
+                                  f"{rate_hz}Hz", "size", str(size), "waitset"], env=env)
     try:
         ping.wait_exit(timeout=seconds + 30)
     finally:
@@ -353,6 +395,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mode", choices=["event", "periodic"], default="event",
                         help="sensor fusion's config.mode (default event)")
     parser.add_argument("--png", type=output_file, default=None, help="draw the latency distributions into this PNG")
+    parser.add_argument("--busy", action="store_true",
+                        help="keep one core busy with a spinning process for the whole run, ddsperf included")
+    parser.add_argument("--realtime-priority", type=int, default=REALTIME_PRIORITY, metavar="N",
+                        help=f"the applications' {PRIORITY_KEY} (default {REALTIME_PRIORITY}, as the launcher sets it; "
+                             "0: the default priority); ddsperf runs at the same")
+    parser.add_argument("--c-priority", choices=["same", "default"], default="same",
+                        help="ddsperf at the applications' priority (same, the default) or at the default priority")
+    parser.add_argument("--no-lock-memory", action="store_true",
+                        help=f"the applications without {LOCK_MEMORY_KEY} (the launcher sets it)")
     add_domain_option(parser, 86, "DDS domain id")
     add_log_dir_option(parser, help="write every process's output and status records there (DIR/sN-oM/)")
     args = parser.parse_args(argv)
@@ -366,19 +417,34 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if any(n < 1 for n in sensor_counts) or any(not 0 < n <= VISION_OBJECT_LIST_MAX_SIZE for n in object_counts) \
             or args.window <= 0 or args.c_seconds < 0 or (args.c_rate is not None and args.c_rate < 1) \
-            or args.vision_interval < 1:
+            or args.vision_interval < 1 or not 0 <= args.realtime_priority <= MAX_PRIORITY:
         print(f"{PROG}: --sensors must be positive, --objects 1..{VISION_OBJECT_LIST_MAX_SIZE}, --window positive, "
-              "--c-seconds 0 or more, --c-rate and --vision-interval 1 or more", file=sys.stderr)
+              f"--c-seconds 0 or more, --c-rate and --vision-interval 1 or more, --realtime-priority 0..{MAX_PRIORITY}",
+              file=sys.stderr)
         return 2
 
     if args.c_rate is None:
         args.c_rate = max(1, round(1000 / args.vision_interval))
+    realtime = RealtimeChoice(args.realtime_priority, not args.no_lock_memory,
+                              not args.realtime_priority or priority_problem(args.realtime_priority) is None,
+                              args.c_priority == "same")
+    # --busy: the spinner runs from before the applications until after ddsperf, whatever ends the run.
+    spinner = Child("busy", [sys.executable, "-c", SPINNER]) if args.busy else None
+    try:
+        return report(args, sensor_counts, object_counts, realtime)
+    finally:
+        if spinner is not None:
+            stop_all([spinner], timeout=5)
+
+
+def report(args: argparse.Namespace, sensor_counts: list[int], object_counts: list[int],
+           realtime: RealtimeChoice) -> int:
     results: list[Result] = []
     for sensors in sensor_counts:
         for objects in object_counts:
             try:
                 result = run_one(sensors, objects, args.window, args.domain, args.timeout, args.log_dir, args.mode,
-                                 args.vision_interval)
+                                 args.vision_interval, realtime)
             except (TimeoutError, RuntimeError) as error:
                 print(f"{PROG}: {sensors} sensor(s), {objects} object(s): {error}", file=sys.stderr)
                 return 1
@@ -389,7 +455,9 @@ def main(argv: list[str] | None = None) -> int:
     ratio = float("nan")
     alert_p99 = float("nan")
     print(f"sensor-to-alert latency, sensor fusion in {args.mode} mode, loopback, {os.cpu_count()} CPU(s), "
-          f"load average {os.getloadavg()[0]:.1f}; C: ddsperf at {args.c_rate} Hz; ms")
+          f"load average {os.getloadavg()[0]:.1f}{', one core kept busy (--busy)' if args.busy else ''}; "
+          f"{realtime.describe()}; C: ddsperf at {args.c_rate} Hz"
+          f"{' at the same priority' if realtime.c_prefix() else ' at the default priority'}; ms")
     for result in results:
         print()
         print(f"{result.sensors} vision sensor(s) x {1000 / args.vision_interval:g} Hz, {result.objects} objects a "
@@ -406,7 +474,8 @@ def main(argv: list[str] | None = None) -> int:
                 size = result.sizes[C_HOPS[hop]]
                 if size not in c_cache:
                     print(f"{PROG}: ddsperf at {size} bytes ...", file=sys.stderr, flush=True)
-                    c_cache[size] = ddsperf_one_way(size, args.c_seconds, args.domain, args.c_rate)
+                    c_cache[size] = ddsperf_one_way(size, args.c_seconds, args.domain, args.c_rate,
+                                                    realtime.c_prefix())
                 c = c_cache[size]
                 if c is not None:
                     if hop != "command hop":
@@ -425,7 +494,7 @@ def main(argv: list[str] | None = None) -> int:
             medians[part] = p50
             print(f"    {part:30} {len(result.hops.get(part, [])):>5} {p50:>8.3f} {p99:>8.3f} {top:>8.3f}")
         alert_p99 = percentiles(result.hops.get("alert total", []))[1]
-        goal = 2.0 if result.list_objects <= 10 else 3.0
+        goal = BUSY_P99_GOAL_MS if args.busy else QUIET_P99_GOAL_MS
         ratio = alert_p99 / c_chain_p99 if c_chain_p99 > 0 else float("nan")
         alerts = len(result.hops.get("alert total", []))
         if alerts < MIN_ALERTS_TO_JUDGE:
@@ -433,15 +502,28 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  too short to judge: the goals need at least {MIN_ALERTS_TO_JUDGE} alerts (this run: {alerts} in "
                   f"{args.window:g} s, {tall_per_s:g} tall vision samples a second)")
             continue
-        if alert_p99 > goal:
+        ratio_goal = BUSY_RATIO_GOAL if args.busy else QUIET_RATIO_GOAL
+        # Quiet, the 2 ms holds only where C itself is fast enough (its chain's p99 under 0.5 ms).
+        p99_judged = args.busy or 0 < c_chain_p99 < QUIET_C_P99_BELOW_MS
+        if (p99_judged and alert_p99 > goal) or not ratio <= ratio_goal:
             transport = sum(p50 for part, p50 in medians.items() if part.endswith("transport"))
             work = sum(p50 for part, p50 in medians.items() if part.endswith("work"))
             print(f"  why: of the alert total's p50 {percentiles(result.hops.get('alert total', []))[0]:.3f} ms, the "
                   f"three transports (Cyclone's delivery and the wake-up of each taking thread) take {transport:.3f} "
                   f"ms and the applications' work {work:.3f} ms (p50s)")
-        print(f"  goal: alert total p99 <= {goal:g} ms: {alert_p99:.3f} ms "
-              f"{'met' if alert_p99 <= goal else 'NOT MET'}; no hop above 10x C: worst x{worst_hop:.1f} "
-              f"{'met' if 0 < worst_hop <= 10 else 'NOT MET' if worst_hop > 10 else '(no C figures)'}")
+        condition = "busy" if args.busy else "quiet"
+        if c_chain_p99 <= 0:
+            print(f"  goal ({condition}): chain_vs_c <= {ratio_goal:g}: no C figures (ddsperf missing or "
+                  "--c-seconds 0)")
+        else:
+            print(f"  goal ({condition}): chain_vs_c <= {ratio_goal:g}: {ratio:.1f} "
+                  f"{'met' if ratio <= ratio_goal else 'NOT MET'} (worst hop x{worst_hop:.1f} C)")
+        if p99_judged:
+            print(f"  goal ({condition}): alert total p99 <= {goal:g} ms: {alert_p99:.3f} ms "
+                  f"{'met' if alert_p99 <= goal else 'NOT MET'}")
+        else:
+            print(f"  goal (quiet): alert total p99 <= {goal:g} ms: not judged, the C chain's p99 "
+                  f"{c_chain_p99:.3f} ms is not under {QUIET_C_P99_BELOW_MS:g} ms ({alert_p99:.3f} ms)")
     if args.png is not None:
         draw(results, args.png)
         print(f"latency distributions drawn into {args.png}")

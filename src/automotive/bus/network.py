@@ -116,6 +116,8 @@ PROBE_FOREVER = "inf"
 # largest datagrams (64 KiB, the receive chunk of 128 KiB plus one more), so no allocation per datagram is added.
 RECEIVE_BUFFER_SIZE = "256KiB"
 LOCALHOST = "127.0.0.1"
+# Cyclone's thread that receives the datagrams and delivers user data to the readers (automotive.bus.realtime).
+RECEIVE_THREAD = "recv"
 _HOST_NAME = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.-]*[A-Za-z0-9])?$")
 
 # The elements the applications may set, by their path below CycloneDDS/Domain (how the override line names them).
@@ -128,8 +130,8 @@ NETWORK_ELEMENTS = ("General/Interfaces", "General/AllowMulticast", "Discovery/P
                     "General/AssumeMulticastCapable")
 TUNING_ELEMENTS = ("General/MaxMessageSize", "General/FragmentSize", "Internal/PrimaryReorderMaxSamples",
                    "Internal/SecondaryReorderMaxSamples", "Internal/SocketReceiveBufferSize",
-                   "Internal/SocketSendBufferSize", "Sizing/ReceiveBufferSize")
-_GROUPS = ("General", "Discovery", "Internal", "Sizing")  # the order of the applications' XML
+                   "Internal/SocketSendBufferSize", "Sizing/ReceiveBufferSize", "Threads/Thread")
+_GROUPS = ("General", "Discovery", "Internal", "Sizing", "Threads")  # the order of the applications' XML
 # Older names Cyclone still reads for the same settings (its "moved" elements and aliases).
 _MOVED = {"Internal/MaxMessageSize": "General/MaxMessageSize", "Internal/FragmentSize": "General/FragmentSize",
           "Internal/MinimumSocketReceiveBufferSize": "Internal/SocketReceiveBufferSize",
@@ -198,6 +200,9 @@ class NetworkConfig:
     # starts (Cyclone's Internal/PrimaryReorderMaxSamples and, per reader that joined it, SecondaryReorderMaxSamples:
     # 128 by default; the rest is dropped without a trace). 0: Cyclone's defaults.
     reorder_samples: int = 0
+    # Cyclone's receive thread at this SCHED_FIFO priority (0: Cyclone's default, the process's policy);
+    # automotive.bus.realtime says when and why.
+    receive_thread_priority: int = 0
     # Layered under a user's CYCLONEDDS_URI (made by ``layered``): the user's configuration, given to Cyclone after
     # ours; the elements of ours it replaces, left out; and whether the network choice is the user's.
     user_config: str = ""
@@ -299,6 +304,9 @@ class NetworkConfig:
                          ("Internal/SocketSendBufferSize",
                           f'<SocketSendBufferSize min="default" max="{self.socket_buffer}"/>')]
         elements.append(("Sizing/ReceiveBufferSize", _text("ReceiveBufferSize", RECEIVE_BUFFER_SIZE)))
+        if self.receive_thread_priority:
+            elements.append(("Threads/Thread", f'<Thread name="{RECEIVE_THREAD}"><Scheduling><Class>realtime</Class>'
+                             f"<Priority>{self.receive_thread_priority}</Priority></Scheduling></Thread>"))
         return elements
 
     def lan_interface(self) -> str:

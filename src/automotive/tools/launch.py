@@ -58,6 +58,7 @@ from pathlib import Path
 from typing import IO
 
 from automotive import config
+from automotive.bus import realtime
 from automotive.bus.cli import (
     DUMP_STACKS_SIGNAL,
     EXIT_BAD_INPUT,
@@ -86,6 +87,14 @@ MODES = ("auto", "window", "tmux", "background")
 # ownership; readers follow the stronger live instance.
 REDUNDANT_APPS = ("sensor_fusion", "collision_avoidance")
 PRIMARY_STRENGTH, STANDBY_STRENGTH = 20, 10
+# The applications of the alert chain (a vision sample to the driver's alert and the platform's command) run with a
+# modest real-time priority and their memory locked, where the host permits it (automotive.bus.realtime; an
+# application that is not permitted says so in one line and runs without). Not the camera or the LiDAR: their loops
+# move megabytes a frame, and at a real-time priority they would take a core from everything else. Given before the
+# user's -D settings, which replace them (-D config.realtimePriority=0 turns it off).
+REALTIME_APPS = ("vision", "sensor_fusion", "collision_avoidance", "hmi", "vehicle_platform")
+REALTIME_PRIORITY = 10
+REALTIME_SETTINGS = (f"{realtime.PRIORITY_KEY}={REALTIME_PRIORITY}", f"{realtime.LOCK_MEMORY_KEY}=true")
 STACK_DUMP_WAIT_S = 1.0  # the time given to a hung process to write its threads' stacks before SIGKILL
 SECOND_INTERRUPT_AFTER_S = 0.5  # an interrupt sooner than this after the first is the same one, delivered twice
 # What the launcher may still take after its stop timeout, at worst: the stack dump, 5 s for the killed to end, 2 s
@@ -204,18 +213,20 @@ def plan(args: argparse.Namespace) -> tuple[list[AppSpec], list[tuple[str, str]]
             missing.append((module, reason))
             continue
         extra = ["--ui", "auto"] if module == "hmi" else []
+        own = [*common, *(arg for setting in REALTIME_SETTINGS for arg in ("-D", setting))] \
+            if module in REALTIME_APPS else common
         if module == "vision" and args.vision_sensors > 1:
             for sensor in range(1, args.vision_sensors + 1):
                 name = f"vision-{sensor}"
-                specs.append(AppSpec(name, module, [*common, "-D", f"config.sensorId={sensor}",
+                specs.append(AppSpec(name, module, [*own, "-D", f"config.sensorId={sensor}",
                                                     *overrides_for(module, name, args.overrides)]))
         elif module in REDUNDANT_APPS and args.redundant:
             for name, strength in ((module, PRIMARY_STRENGTH), (f"{module}-2", STANDBY_STRENGTH)):
-                specs.append(AppSpec(name, module, [*common, "-D", f"config.instanceName={name}",
+                specs.append(AppSpec(name, module, [*own, "-D", f"config.instanceName={name}",
                                                     "-D", f"config.ownershipStrength={strength}",
                                                     *overrides_for(module, name, args.overrides)]))
         else:
-            specs.append(AppSpec(module, module, [*common, *overrides_for(module, module, args.overrides), *extra]))
+            specs.append(AppSpec(module, module, [*own, *overrides_for(module, module, args.overrides), *extra]))
     if not 0 <= args.monitor_port <= 65535:
         raise LaunchError(f"--monitor-port {args.monitor_port}: expected a port from 0 to 65535")
     if args.monitor and specs:
