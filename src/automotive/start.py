@@ -65,7 +65,10 @@ def start(module: str, name: str, argv: list[str] | None = None) -> int:
 
 
 def _script(module: str, name: str) -> Callable[[], int]:
-    return lambda: start(module, name)
+    def script() -> int:
+        return start(module, name)
+    script.module = module  # type: ignore[attr-defined]  # the program it starts (tests/test_layers.py)
+    return script
 
 
 # The console scripts (pyproject.toml's [project.scripts]).
