@@ -96,6 +96,21 @@ def chrome_mask(figure: CloudFigure, status_box: Box) -> npt.NDArray[np.bool_]:
 
 # -- the picture, in-process -----------------------------------------------------------------------------------------
 
+@pytest.mark.parametrize("size", [(1000, 500), (800, 400), (1600, 900), (1280, 720)], ids=str)
+def test_every_axis_title_is_inside_the_picture(size: tuple[int, int]) -> None:
+    """Issue 38: at 1000x500 the z axis's title fell off the picture's left edge."""
+    figure = CloudFigure(size, title=TITLE)
+    xyz, rgb = scene_cloud(1, RED=(3, 1, 60))
+    figure.render(xyz, rgb, "cloud 1")
+    renderer = figure.figure.canvas.get_renderer()  # type: ignore[attr-defined]
+    z_title = figure.perspective.zaxis.label if figure.perspective.zaxis.label.get_visible() else figure.z_title
+    assert z_title.get_text() == "z (m)" and z_title.get_visible()
+    for label in (figure.perspective.xaxis.label, figure.perspective.yaxis.label, z_title,
+                  figure.top.xaxis.label, figure.top.yaxis.label):
+        box = label.get_window_extent(renderer)
+        assert 0 <= box.x0 and box.x1 <= size[0] and 0 <= box.y0 and box.y1 <= size[1], (label.get_text(), box)
+
+
 def test_the_picture_says_what_the_points_are() -> None:
     figure = CloudFigure(DEFAULT_SIZE, title=TITLE)
     xyz, rgb = scene_cloud(1, RED=(3, 1, 60))

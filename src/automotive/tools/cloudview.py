@@ -236,10 +236,32 @@ class CloudFigure:
         self._chrome: npt.NDArray[np.uint8] | None = None
         # Where the points go, (left, top, right, bottom) pixels, right and bottom excluded. The axes' rectangles are
         # fixed (the 3D one is square already, so matplotlib keeps it as it is).
-        left, top, right, bottom = self._pixel_box(perspective.get_position().transformed(self.figure.transFigure))
-        self.panels = {"perspective": (left, max(top, self._panel_rows[0]), right, min(bottom, self._panel_rows[1])),
+        self._margin = pad  # what the z axis's title keeps from the picture's left edge and its tick labels
+        # Stands in for the z axis's label where that would fall off the picture (_place_z_title).
+        self.z_title = self.figure.text(0, 0.5, "z (m)", color=_INK, fontsize=pt(10), rotation=90, ha="center",
+                                        va="center", visible=False)
+        self.panels = {"perspective": self._perspective_panel(),
                        # Inside the frame: points do not cover the axes' lines.
                        "top": self._pixel_box(self.top.get_position().transformed(self.figure.transFigure), inset=1)}
+
+    def _perspective_panel(self) -> tuple[int, int, int, int]:
+        left, top, right, bottom = self._pixel_box(
+            self.perspective.get_position().transformed(self.figure.transFigure))
+        return left, max(top, self._panel_rows[0]), right, min(bottom, self._panel_rows[1])
+
+    def _place_z_title(self) -> bool:
+        """Keep the z axis's title inside the picture; whether the chrome changed. Matplotlib puts a 3D axis's label
+        where the box's proportions say: for a wide, low box (a picture of 1000x500) that is past the picture's left
+        edge. There the axis's own label is hidden and ``z_title`` stands in for it at the same height, moved right
+        just enough (the chrome is drawn again once)."""
+        label = self.perspective.zaxis.label
+        box = label.get_window_extent(self._canvas.get_renderer())
+        if box.x0 >= self._margin:
+            return False
+        label.set_visible(False)
+        self.z_title.set_position(((self._margin + box.width / 2) / self.width, (box.y0 + box.y1) / 2 / self.height))
+        self.z_title.set_visible(True)
+        return True
 
     def _pixel_box(self, bbox: Bbox, inset: int = 0) -> tuple[int, int, int, int]:
         """(left, top, right, bottom) pixel indexes, top-left origin, right and bottom excluded, of a display box."""
@@ -257,7 +279,11 @@ class CloudFigure:
         self.perspective.set_zlim(region.z_low, region.z_high)
         # One scale on all three axes: a sphere looks round.
         self.perspective.set_box_aspect((2 * region.half, 2 * region.half, span_z), zoom=_BOX_ZOOM)
+        self.perspective.zaxis.label.set_visible(True)  # where this region's box puts it, first
+        self.z_title.set_visible(False)
         self._canvas.draw()
+        if self._place_z_title():
+            self._canvas.draw()
         self._chrome = np.asarray(self._canvas.buffer_rgba()).copy()
         self._region = region
 
