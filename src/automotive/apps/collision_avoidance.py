@@ -214,8 +214,12 @@ def body(app: Application) -> None:
             objects_owner.follow(objects)
             source = objects.sample_info.source_timestamp  # type: ignore[attr-defined]
             app.stats.record("take", topic=topics["objects"], src=source, at=taken_ns, objects=len(objects.objects))
+            # Checked again with each output's own stamp: frozen since the take, the list is no longer fresh (the
+            # next wake-up sees the gap). So no output of a list older than the lease is ever written.
+            stamp = time.time_ns()
+            if stall_guard.outdated(source, stamp):
+                continue
             if needs_attention(objects, alert_size):
-                stamp = time.time_ns()
                 alert_writer.write(ATTENTION, timestamp=stamp)
                 app.stats.record("write", topic=topics["alerts"], src=stamp, inputs=[source], attention=True)
                 if alert_active is not True:
@@ -223,7 +227,6 @@ def body(app: Application) -> None:
                     app.stats.record("alert", state="alert")
                 alert_active = True
             elif alert_active is not False:
-                stamp = time.time_ns()
                 alert_writer.write(ALL_CLEAR, timestamp=stamp)
                 app.stats.record("write", topic=topics["alerts"], src=stamp, inputs=[source], attention=False)
                 # the first verdict, when it is all clear, clears nothing: the HMI's box shows it, -v this line
@@ -235,6 +238,8 @@ def body(app: Application) -> None:
             if sample_id is None:
                 continue
             stamp = time.time_ns()
+            if stall_guard.outdated(source, stamp):
+                continue
             command = command_for(objects, sample_id, stamp)
             control_writer.write(command, timestamp=stamp)
             app.stats.record("write", topic=topics["commands"], src=stamp, inputs=[source], sample_id=sample_id)

@@ -52,7 +52,7 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from automotive import config
@@ -283,68 +283,118 @@ def restart(system: System, name: str) -> StatsChild:
     return program
 
 
-def run_sequence(system: System, sequence: str, number: int, freeze_s: float) -> tuple[float, float]:
-    """Inject one fault sequence; (its start, its end) in time.time once the system is whole again."""
+@dataclass
+class Sequence:
+    """One fault sequence as it ran: when each of its phases began (time.time), when it ended, and when an instance
+    was continued (its commands from then on must answer lists written after it, less one lease)."""
+
+    phases: list[tuple[str, float]]
+    end: float = 0.0
+    resumed: list[tuple[StatsChild, float]] = field(default_factory=list)
+
+    def phase(self, name: str) -> float:
+        self.phases.append((name, time.time()))
+        return self.phases[-1][1]
+
+    def silences(self, receptions: list[float]) -> list[tuple[str, float]]:
+        """The longest silence (ms) at the RTI reader in each phase."""
+        bounds = [start for _, start in self.phases[1:]] + [self.end]
+        return [(name, longest_silence(receptions, start, until) * 1000)
+                for (name, start), until in zip(self.phases, bounds)]
+
+
+def run_sequence(system: System, sequence: str, number: int, freeze_s: float) -> Sequence:
+    """Inject one fault sequence; returns it once the system is whole again."""
     timeout = system.timeout
     commands_go_on(system)
     time.sleep(system.random.uniform(0, 0.1))  # at a random phase of the 100 ms command period
-    start = time.time()
+    run = Sequence([])
     if sequence == "frozen":
+        start = run.phase("primary frozen")
         freeze(system.primary)
         platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
         time.sleep(max(0.0, start + freeze_s - time.time()))
+        run.phase("primary continued")
         resumed = resume(system.primary)
+        run.resumed.append((system.primary, resumed))
         platform_owned_by(system, PRIMARY_NAME, resumed, "the platform's owner change to the continued primary")
         back_at_work(system.primary, resumed, timeout)
     elif sequence == "killed":
+        start = run.phase("primary killed")
         kill(system.primary)
         platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
-        restarted = time.time()
+        restarted = run.phase("primary restarted")
         restart(system, PRIMARY_NAME)
         platform_owned_by(system, PRIMARY_NAME, restarted, "the platform's owner change to the restarted primary")
     elif sequence == "double":
+        start = run.phase("primary frozen")
         freeze(system.primary)
         platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
         time.sleep(max(0.0, start + freeze_s - time.time()))
+        run.phase("primary continued, standby frozen")
         freeze(system.standby)
         resumed = resume(system.primary)
+        run.resumed.append((system.primary, resumed))
         platform_owned_by(system, PRIMARY_NAME, resumed, "the platform's owner change to the continued primary")
         time.sleep(max(0.0, resumed + freeze_s - time.time()))
+        run.phase("standby continued")
         standby_back = resume(system.standby)
+        run.resumed.append((system.standby, standby_back))
         back_at_work(system.standby, standby_back, timeout)
     elif sequence == "back-to-back":
+        start = run.phase("primary killed")
         kill(system.primary)
         platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
-        restarted = time.time()
+        restarted = run.phase("primary restarted")
         restart(system, PRIMARY_NAME)
         platform_owned_by(system, PRIMARY_NAME, restarted, "the platform's owner change to the restarted primary")
-        second = time.time()
         if number % 2:
+            second = run.phase("standby killed as the primary took over")
             kill(system.standby)
             restart(system, STANDBY_NAME)
             system.standby.wait_record("joined", timeout, what="the restarted standby's join")
         else:
+            second = run.phase("standby frozen as the primary took over")
             freeze(system.standby)
             time.sleep(freeze_s)
-            back_at_work(system.standby, resume(system.standby), timeout)
+            resumed = resume(system.standby)
+            run.resumed.append((system.standby, resumed))
+            back_at_work(system.standby, resumed, timeout)
         if system.platform.records("owner", since=second, match=lambda record: record["instance"] != PRIMARY_NAME):
             raise RuntimeError(f"{sequence} {number}: the platform followed the standby after the primary was back")
     else:
         raise ValueError(sequence)
     commands_go_on(system)
-    return start, time.time()
+    run.end = time.time()
+    return run
 
 
-def stale_commands(system: System) -> list[str]:
-    """Commands an instance wrote in answer to an object list older than the lease when written (a backlog)."""
+def no_fault_reference(receptions: list[float], runs: list[Sequence]) -> tuple[float, float]:
+    """(the longest silence in ms, the seconds looked at) at the RTI reader between the sequences: from the end of
+    each to the start of the next, where no instance is faulty (a starved machine shows there too)."""
+    longest, seconds = 0.0, 0.0
+    for before, after in zip(runs, runs[1:]):
+        start, end = before.end, after.phases[0][1]
+        inside = [t for t in receptions if start <= t <= end]
+        if len(inside) >= 2:
+            longest = max(longest, max(b - a for a, b in zip(inside, inside[1:])) * 1000)
+            seconds += inside[-1] - inside[0]
+    return longest, seconds
+
+
+def stale_commands(system: System, runs: list[Sequence]) -> list[str]:
+    """Commands a continued instance wrote in answer to an object list older than the lease at its continuation
+    (queued while it was frozen: a backlog acted on)."""
     stale = []
-    for program in system.processes:
-        if not program.name.startswith("collision_avoidance"):
-            continue
-        for record in program.records("write", match=lambda record: record["topic"] == "PlatformControl"):
-            age_ms = (int(record["src"]) - int(record["inputs"][0])) / 1e6
-            if age_ms > LEASE_MS:
-                stale.append(f"{program.name} command {record['sample_id']} answered a list {age_ms:.0f} ms old")
+    for run in runs:
+        for program, resumed in run.resumed:
+            resumed_ns = int(resumed * 1e9)
+            # stamped (src) after the continuation: a command written just before the freeze is recorded after it
+            for record in program.records("write", since=resumed,
+                                          match=lambda record: record["topic"] == "PlatformControl"):
+                if int(record["src"]) >= resumed_ns and int(record["inputs"][0]) < resumed_ns - LEASE_MS * 1_000_000:
+                    age_ms = (int(record["src"]) - int(record["inputs"][0])) / 1e6
+                    stale.append(f"{program.name} command {record['sample_id']} answered a list {age_ms:.0f} ms old")
     return stale
 
 
@@ -357,23 +407,30 @@ def run_sequences(args: argparse.Namespace, sequences: list[str]) -> int:
             return 2 if "rticonnextdds-connector" in str(error) else 1
         assert system.rti is not None
         silences: dict[str, list[float]] = {sequence: [] for sequence in sequences}
+        phases: dict[str, list[float]] = {}
+        runs: list[Sequence] = []
         try:
             platform_owned_by(system, PRIMARY_NAME, 0.0, "the primary's first command at the platform")
             system.rti.wait_matched(2, args.timeout)
             for number in range(1, args.rounds + 1):
                 for sequence in sequences:
-                    start, end = run_sequence(system, sequence, number, args.freeze_s)
-                    silence = longest_silence(system.rti.receptions(), start, end) * 1000
+                    run = run_sequence(system, sequence, number, args.freeze_s)
+                    runs.append(run)
+                    measured = run.silences(system.rti.receptions())
+                    silence = max(ms for _, ms in measured)
                     silences[sequence].append(silence)
-                    print(f"{sequence:>12} {number}/{args.rounds}: longest silence at the RTI reader {silence:.0f} ms"
-                          f" (sequence {end - start:.1f} s)", flush=True)
+                    for name, ms in measured:
+                        phases.setdefault(f"{sequence}: {name}", []).append(ms)
+                    print(f"{sequence:>12} {number}/{args.rounds}: longest silence at the RTI reader {silence:.0f} ms ("
+                          + ", ".join(f"{name} {ms:.0f}" for name, ms in measured) + ")", flush=True)
         except (TimeoutError, RunFailed, RuntimeError) as error:
             print(f"{PROG}: {error}", file=sys.stderr)
             return 1
         finally:
             system.stop(args.log_dir)
+        reference = no_fault_reference(system.rti.receptions(), runs)
         problems = check(system)
-        stale = stale_commands(system)
+        stale = stale_commands(system, runs)
         if stale:
             problems.append(f"{len(stale)} command(s) answered a backlog: {'; '.join(stale[:3])}")
         stale_ignored = len(system.platform.records("stale_command"))
@@ -382,6 +439,11 @@ def run_sequences(args: argparse.Namespace, sequences: list[str]) -> int:
           f"freezes of {args.freeze_s:g} s, {os.cpu_count()} CPU(s), load average {load[0]:.1f} {load[1]:.1f}")
     for sequence, values in silences.items():
         print(f"  {sequence + ':':<14} longest silence {stats(values)}")
+    print("  by phase (longest silence in each):")
+    for name, values in phases.items():
+        print(f"    {name + ':':<52} {stats(values)}")
+    print(f"  reference, the same run with no fault (10 commands before each sequence, {reference[1]:.0f} s in all): "
+          f"longest silence {reference[0]:.0f} ms")
     every = [value for values in silences.values() for value in values]
     print(f"  stale commands ignored by the platform: {stale_ignored}")
     print("  checks: " + ("; ".join(problems) if problems else
