@@ -167,14 +167,6 @@ class RtiReader:
             raise RecordTimeout(f"rti_reader: not matched with {count} command writers within {timeout:g} s") from None
 
 
-def longest_silence(receptions: list[float], start: float, end: float) -> float:
-    """The longest time (s) without a reception from ``start`` to ``end``, counting from the last reception before
-    ``start``."""
-    before = [t for t in receptions if t < start]
-    times = ([before[-1]] if before else [start]) + [t for t in receptions if start <= t <= end] + [end]
-    return max(b - a for a, b in zip(times, times[1:]))
-
-
 def write_scene(path: Path) -> Path:
     """40 rows (4 s at 100 ms): a car ahead all along, a tall truck first in the list in rows 0..35."""
     header = (config.properties_dir() / "data" / "vision.csv").read_text().splitlines()[0]
@@ -297,10 +289,17 @@ class Sequence:
         return self.phases[-1][1]
 
     def silences(self, receptions: list[float]) -> list[tuple[str, float]]:
-        """The longest silence (ms) at the RTI reader in each phase."""
-        bounds = [start for _, start in self.phases[1:]] + [self.end]
-        return [(name, longest_silence(receptions, start, until) * 1000)
-                for (name, start), until in zip(self.phases, bounds)]
+        """The longest silence (ms) at the RTI reader in each phase: each silence counts in the phase it began in (a
+        fault's silence at the RTI reader, whose lease is longer than the platform's, outlasts the phase that the
+        platform's owner change ends)."""
+        start = self.phases[0][1]
+        before = [t for t in receptions if t < start]
+        times = [before[-1] if before else start, *(t for t in receptions if start <= t <= self.end), self.end]
+        longest = {name: 0.0 for name, _ in self.phases}
+        for a, b in zip(times, times[1:]):
+            name = next((name for name, begun in reversed(self.phases) if begun <= a), self.phases[0][0])
+            longest[name] = max(longest[name], (b - a) * 1000)
+        return list(longest.items())
 
 
 def run_sequence(system: System, sequence: str, number: int, freeze_s: float) -> Sequence:
