@@ -10,7 +10,7 @@ each. With ``--stats FILE`` every list taken and every alert and command written
 timestamps (``take``, ``write``), which automotive.bench.alert_latency follows.
 
 Redundant mode (config.redundant=true): two instances run hot; readers follow the stronger live one. Each instance
-also reads the commands of the owner and numbers its own after them, so that at a failover the vehicle platform's
+also reads the other instance's commands and numbers its own after them, so that at a failover the vehicle platform's
 sample_ids jump forward, never back; a restarted primary takes over with the next number, without a gap (Commands).
 Object lists older than the liveliness lease when taken are not answered: the instance was stalled (StallGuard); a
 stalled instance (such lists, or its own time gap past the lease) answers fresh lists only and numbers them after the
