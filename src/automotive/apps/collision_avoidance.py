@@ -91,7 +91,6 @@ class Commands:
     def __init__(self, app: Application, writer: DataWriter[PlatformControl], redundant: bool):
         self.log = app.log
         self.stats = app.stats
-        self.writer = writer
         self.others_alive: int | None = None  # live writers of the other instances (None: not told yet)
         self.reader = (app.reader("PlatformControl", PlatformControl, "PlatformControl", hook=self._on_status,
                                   overrides=(Policy.IgnoreLocal.Process,)) if redundant else None)
