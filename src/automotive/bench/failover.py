@@ -151,9 +151,13 @@ class RtiReader:
         except AssertionError:
             errors = [line.text for line in self.child.records if line.stream == STDERR]
             raise RuntimeError(errors[-1] if errors else "the RTI reader did not start") from None
+        self.received: list[float] = []  # the receptions up to the last sequence measured
 
     def receptions(self) -> list[float]:
-        """The reception times (time.time) of every command it took so far."""
+        """The reception times (time.time) of every command it took so far; RunFailed if it ended."""
+        if self.child.poll() is not None:
+            errors = [line.text for line in self.child.records if line.stream == STDERR]
+            raise RunFailed(f"the RTI reader ended (exit {self.child.poll()}): " + " | ".join(errors[-3:]))
         times = []
         for line in list(self.child.records):
             if line.stream == STDOUT and line.text.startswith("{"):
@@ -415,7 +419,8 @@ def run_sequences(args: argparse.Namespace, sequences: list[str]) -> int:
                 for sequence in sequences:
                     run = run_sequence(system, sequence, number, args.freeze_s)
                     runs.append(run)
-                    measured = run.silences(system.rti.receptions())
+                    system.rti.received = system.rti.receptions()
+                    measured = run.silences(system.rti.received)
                     silence = max(ms for _, ms in measured)
                     silences[sequence].append(silence)
                     for name, ms in measured:
@@ -427,7 +432,7 @@ def run_sequences(args: argparse.Namespace, sequences: list[str]) -> int:
             return 1
         finally:
             system.stop(args.log_dir)
-        reference = no_fault_reference(system.rti.receptions(), runs)
+        reference = no_fault_reference(system.rti.received, runs)
         problems = check(system)
         stale = stale_commands(system, runs)
         if stale:

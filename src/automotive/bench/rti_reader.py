@@ -121,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, stop)
     reader = connector.get_input("Sub::PlatformControl")
     matched = 0
+    next_match_check = 0.0
     say("rti reader running")
     try:
         while not stopping:
@@ -128,10 +129,15 @@ def main(argv: list[str] | None = None) -> int:
                 reader.wait(50)
             except rti.TimeoutError:
                 pass
-            count = len(reader.matched_publications)
-            if count != matched:
-                matched = count
-                say(f"matched {count}")
+            if time.monotonic() >= next_match_check:
+                next_match_check = time.monotonic() + 0.25
+                try:
+                    count = len(reader.matched_publications)
+                except ValueError:  # Connector 1.2.4 once gave JSON it could not parse (as a writer went): next time
+                    count = matched
+                if count != matched:
+                    matched = count
+                    say(f"matched {count}")
             reader.take()
             now = time.time()
             for sample in reader.samples.valid_data_iter:
