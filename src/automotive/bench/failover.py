@@ -21,11 +21,29 @@ alert state twice in a row, and every alert change it showed was made by a colli
 (no stale alert). The last line is failover_p99_ms=<p99 of the platform's gaps>; the goal is p99 <= 2 x the liveliness
 lease of the Redundant profiles (250 ms), judged over at least 20 failovers (the default; the p99 of fewer is the
 slowest of a handful): fewer print their figures and "too short to judge".
+
+Fault sequences (``--sequences frozen,killed,double,back-to-back``, or ``all``), measured at an RTI Connext reader of
+PlatformControl as an outside system has it in redundant mode (EXCLUSIVE ownership, a 300 ms liveliness lease
+requested; automotive.bench.rti_reader, which needs pip ``rticonnextdds-connector``), each repeated ``--rounds``
+times:
+
+- frozen: the primary collision_avoidance frozen (SIGSTOP) ``--freeze-s`` seconds, then continued;
+- killed: the primary killed (SIGKILL) and restarted;
+- double: the primary frozen ``--freeze-s``; as it is continued, the standby is frozen, for ``--freeze-s`` too;
+- back-to-back: the primary killed and restarted; as soon as it has taken over again, the standby is killed and
+  restarted (odd rounds) or frozen ``--freeze-s`` (even rounds).
+
+Each sequence ends when the primary owns the platform's commands again, every instance is back and the platform
+executed 10 more commands. Its figure is the longest silence at the RTI reader from the first fault on (receptions,
+wall clock). Checked besides: every command an instance wrote answered an object list at most one lease old (no
+command from a backlog); the command numbers never went back; no stale alert. The last line is failover_p99_ms=<p99
+of the longest silences>; the goal is 600 ms.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import random
 import shutil
@@ -34,14 +52,24 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from automotive import config
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import Record, StatsChild, stop_all, work_folder
+from automotive.tools.children import (
+    STDERR,
+    STDOUT,
+    Child,
+    Record,
+    RecordTimeout,
+    RunFailed,
+    StatsChild,
+    stop_all,
+    work_folder,
+)
 
 PROG = "automotive bench failover"
 PRIMARY, STANDBY = 20, 10
@@ -50,6 +78,8 @@ STALE_WINDOW_S = 2.0  # an alert change shown at the HMI must have been made by 
 # The goal is a p99: of fewer failovers it is the slowest of a handful. Even of 20 it is the slowest one (a p99 parts
 # from the maximum from 101 samples on), so that a goal met is met with a margin.
 MIN_FAILOVERS_TO_JUDGE = 20
+SEQUENCES = ("frozen", "killed", "double", "back-to-back")
+SEQUENCE_GOAL_MS = 600.0  # the longest silence at an outside exclusive reader requesting a 300 ms lease
 
 def owner_change(topic: str, instance: str | None = None) -> Callable[[Record], bool]:
     """An owner record of ``topic`` that follows a previous owner (to ``instance``, if given)."""
@@ -58,7 +88,7 @@ def owner_change(topic: str, instance: str | None = None) -> Callable[[Record], 
 
 
 class System:
-    def __init__(self, domain: int, data: Path, timeout: float, workdir: Path):
+    def __init__(self, domain: int, data: Path, timeout: float, workdir: Path, rti: bool = False):
         self.common = ["--domain", str(domain), "-D", "config.redundant=true"]
         self.timeout = timeout
         self.workdir = workdir
@@ -66,7 +96,10 @@ class System:
         self.env = dict(os.environ)
         self.env["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()  # loopback only
         self.processes: list[StatsChild] = []
+        self.rti: RtiReader | None = None
         try:
+            if rti:  # first: an RTI participant probes few participant indexes, and is found by all when first
+                self.rti = RtiReader(domain, self.env)
             self.hmi = self.spawn("hmi", "hmi", ["--ui", "console"])
             self.platform = self.spawn("vehicle_platform", "vehicle_platform", [])
             self.standby = self.instance("collision_avoidance-2")
@@ -93,13 +126,49 @@ class System:
 
     def stop(self, log_dir: Path | None) -> None:
         stop_all([program.child for program in self.processes], timeout=15)
+        if self.rti is not None:
+            self.rti.child.stop(signal.SIGTERM)
         if log_dir is not None:
             log_dir.mkdir(parents=True, exist_ok=True)
+            if self.rti is not None:
+                (log_dir / "rti_reader.log").write_text(
+                    "".join(f"{line.time:.3f} {line.text}\n" for line in self.rti.child.records))
             for program in self.processes:
                 (log_dir / f"{program.stats.stem}.log").write_text(
                     "".join(f"{line.time:.3f} {line.text}\n" for line in program.child.records))
                 if program.stats.is_file():
                     shutil.copyfile(program.stats, log_dir / program.stats.name)
+
+
+class RtiReader:
+    """The RTI Connext reader of PlatformControl (automotive.bench.rti_reader) in a process of its own."""
+
+    def __init__(self, domain: int, env: dict[str, str]):
+        self.child = Child("rti_reader", [sys.executable, "-m", "automotive.bench.rti_reader", "--domain", str(domain)],
+                           env=env, separate_stderr=True)
+        try:
+            self.child.wait_for_line("rti reader running", timeout=60)
+        except AssertionError:
+            errors = [line.text for line in self.child.records if line.stream == STDERR]
+            raise RuntimeError(errors[-1] if errors else "the RTI reader did not start") from None
+        self.received: list[float] = []  # the receptions up to the last sequence measured
+
+    def receptions(self) -> list[float]:
+        """The reception times (time.time) of every command it took so far; RunFailed if it ended."""
+        if self.child.poll() is not None:
+            errors = [line.text for line in self.child.records if line.stream == STDERR]
+            raise RunFailed(f"the RTI reader ended (exit {self.child.poll()}): " + " | ".join(errors[-3:]))
+        times = []
+        for line in list(self.child.records):
+            if line.stream == STDOUT and line.text.startswith("{"):
+                times.append(float(json.loads(line.text)["t"]))
+        return times
+
+    def wait_matched(self, count: int, timeout: float) -> None:
+        try:
+            self.child.wait_for_line(f"matched {count}", timeout=timeout)
+        except AssertionError:
+            raise RecordTimeout(f"rti_reader: not matched with {count} command writers within {timeout:g} s") from None
 
 
 def write_scene(path: Path) -> Path:
@@ -165,6 +234,230 @@ def failover(system: System, number: int) -> Failover:
     if up["instance"] != "collision_avoidance":
         raise RuntimeError(f"failover {number}: after the restart the platform followed {up['instance']}")
     return Failover(float(down["gap_ms"]), hmi_gap, float(up["gap_ms"]), loss_reported)
+
+
+PRIMARY_NAME, STANDBY_NAME = "collision_avoidance", "collision_avoidance-2"
+
+
+def platform_owned_by(system: System, instance: str, since: float, what: str) -> None:
+    """Wait until the platform's commands come from ``instance`` (a change of owner from ``since`` on)."""
+    system.platform.wait_record("owner", system.timeout, since=since, what=what,
+                                match=lambda record: record["topic"] == "PlatformControl"
+                                and record["instance"] == instance)
+
+
+def commands_go_on(system: System, count: int = 10) -> None:
+    system.platform.wait_record("command", system.timeout, since=time.time(), count=count,
+                                what=f"{count} more commands executed")
+
+
+def back_at_work(program: StatsChild, since: float, timeout: float) -> None:
+    """Wait until an instance answers an object list again (continued or restarted)."""
+    program.wait_record("take", timeout, since=since, what=f"{program.name} taking object lists again")
+
+
+def freeze(program: StatsChild) -> None:
+    program.child.send_signal(signal.SIGSTOP)
+
+
+def resume(program: StatsChild) -> float:
+    program.child.send_signal(signal.SIGCONT)
+    return time.time()
+
+
+def kill(program: StatsChild) -> None:
+    program.child.send_signal(signal.SIGKILL)
+    program.child.process.wait()
+
+
+def restart(system: System, name: str) -> StatsChild:
+    program = system.instance(name)
+    if name == PRIMARY_NAME:
+        system.primary = program
+    else:
+        system.standby = program
+    return program
+
+
+@dataclass
+class Sequence:
+    """One fault sequence as it ran: when each of its phases began (time.time), when it ended, and when an instance
+    was continued (its commands from then on must answer lists written after it, less one lease)."""
+
+    phases: list[tuple[str, float]]
+    end: float = 0.0
+    resumed: list[tuple[StatsChild, float]] = field(default_factory=list)
+
+    def phase(self, name: str) -> float:
+        self.phases.append((name, time.time()))
+        return self.phases[-1][1]
+
+    def silences(self, receptions: list[float]) -> list[tuple[str, float]]:
+        """The longest silence (ms) at the RTI reader in each phase: each silence counts in the phase it began in (a
+        fault's silence at the RTI reader, whose lease is longer than the platform's, outlasts the phase that the
+        platform's owner change ends)."""
+        start = self.phases[0][1]
+        before = [t for t in receptions if t < start]
+        times = [before[-1] if before else start, *(t for t in receptions if start <= t <= self.end), self.end]
+        longest = {name: 0.0 for name, _ in self.phases}
+        for a, b in zip(times, times[1:]):
+            name = next((name for name, begun in reversed(self.phases) if begun <= a), self.phases[0][0])
+            longest[name] = max(longest[name], (b - a) * 1000)
+        return list(longest.items())
+
+
+def run_sequence(system: System, sequence: str, number: int, freeze_s: float) -> Sequence:
+    """Inject one fault sequence; returns it once the system is whole again."""
+    timeout = system.timeout
+    commands_go_on(system)
+    time.sleep(system.random.uniform(0, 0.1))  # at a random phase of the 100 ms command period
+    run = Sequence([])
+    if sequence == "frozen":
+        start = run.phase("primary frozen")
+        freeze(system.primary)
+        platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
+        time.sleep(max(0.0, start + freeze_s - time.time()))
+        run.phase("primary continued")
+        resumed = resume(system.primary)
+        run.resumed.append((system.primary, resumed))
+        platform_owned_by(system, PRIMARY_NAME, resumed, "the platform's owner change to the continued primary")
+        back_at_work(system.primary, resumed, timeout)
+    elif sequence == "killed":
+        start = run.phase("primary killed")
+        kill(system.primary)
+        platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
+        restarted = run.phase("primary restarted")
+        restart(system, PRIMARY_NAME)
+        platform_owned_by(system, PRIMARY_NAME, restarted, "the platform's owner change to the restarted primary")
+    elif sequence == "double":
+        start = run.phase("primary frozen")
+        freeze(system.primary)
+        platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
+        time.sleep(max(0.0, start + freeze_s - time.time()))
+        run.phase("primary continued, standby frozen")
+        freeze(system.standby)
+        resumed = resume(system.primary)
+        run.resumed.append((system.primary, resumed))
+        platform_owned_by(system, PRIMARY_NAME, resumed, "the platform's owner change to the continued primary")
+        time.sleep(max(0.0, resumed + freeze_s - time.time()))
+        run.phase("standby continued")
+        standby_back = resume(system.standby)
+        run.resumed.append((system.standby, standby_back))
+        back_at_work(system.standby, standby_back, timeout)
+    elif sequence == "back-to-back":
+        start = run.phase("primary killed")
+        kill(system.primary)
+        platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
+        restarted = run.phase("primary restarted")
+        restart(system, PRIMARY_NAME)
+        platform_owned_by(system, PRIMARY_NAME, restarted, "the platform's owner change to the restarted primary")
+        if number % 2:
+            second = run.phase("standby killed as the primary took over")
+            kill(system.standby)
+            restart(system, STANDBY_NAME)
+            system.standby.wait_record("joined", timeout, what="the restarted standby's join")
+        else:
+            second = run.phase("standby frozen as the primary took over")
+            freeze(system.standby)
+            time.sleep(freeze_s)
+            resumed = resume(system.standby)
+            run.resumed.append((system.standby, resumed))
+            back_at_work(system.standby, resumed, timeout)
+        if system.platform.records("owner", since=second, match=lambda record: record["instance"] != PRIMARY_NAME):
+            raise RuntimeError(f"{sequence} {number}: the platform followed the standby after the primary was back")
+    else:
+        raise ValueError(sequence)
+    commands_go_on(system)
+    run.end = time.time()
+    return run
+
+
+def no_fault_reference(receptions: list[float], runs: list[Sequence]) -> tuple[float, float]:
+    """(the longest silence in ms, the seconds looked at) at the RTI reader between the sequences: from the end of
+    each to the start of the next, where no instance is faulty (a starved machine shows there too)."""
+    longest, seconds = 0.0, 0.0
+    for before, after in zip(runs, runs[1:]):
+        start, end = before.end, after.phases[0][1]
+        inside = [t for t in receptions if start <= t <= end]
+        if len(inside) >= 2:
+            longest = max(longest, max(b - a for a, b in zip(inside, inside[1:])) * 1000)
+            seconds += inside[-1] - inside[0]
+    return longest, seconds
+
+
+def stale_commands(system: System, runs: list[Sequence]) -> list[str]:
+    """Commands a continued instance wrote in answer to an object list older than the lease at its continuation
+    (queued while it was frozen: a backlog acted on)."""
+    stale = []
+    for run in runs:
+        for program, resumed in run.resumed:
+            resumed_ns = int(resumed * 1e9)
+            # stamped (src) after the continuation: a command written just before the freeze is recorded after it
+            for record in program.records("write", since=resumed,
+                                          match=lambda record: record["topic"] == "PlatformControl"):
+                if int(record["src"]) >= resumed_ns and int(record["inputs"][0]) < resumed_ns - LEASE_MS * 1_000_000:
+                    age_ms = (int(record["src"]) - int(record["inputs"][0])) / 1e6
+                    stale.append(f"{program.name} command {record['sample_id']} answered a list {age_ms:.0f} ms old")
+    return stale
+
+
+def run_sequences(args: argparse.Namespace, sequences: list[str]) -> int:
+    with work_folder("bench-failover-") as folder:
+        try:
+            system = System(args.domain, write_scene(folder / "scene.csv"), args.timeout, folder, rti=True)
+        except RuntimeError as error:
+            print(f"{PROG}: {error}", file=sys.stderr)
+            return 2 if "rticonnextdds-connector" in str(error) else 1
+        assert system.rti is not None
+        silences: dict[str, list[float]] = {sequence: [] for sequence in sequences}
+        phases: dict[str, list[float]] = {}
+        runs: list[Sequence] = []
+        try:
+            platform_owned_by(system, PRIMARY_NAME, 0.0, "the primary's first command at the platform")
+            system.rti.wait_matched(2, args.timeout)
+            for number in range(1, args.rounds + 1):
+                for sequence in sequences:
+                    run = run_sequence(system, sequence, number, args.freeze_s)
+                    runs.append(run)
+                    system.rti.received = system.rti.receptions()
+                    measured = run.silences(system.rti.received)
+                    silence = max(ms for _, ms in measured)
+                    silences[sequence].append(silence)
+                    for name, ms in measured:
+                        phases.setdefault(f"{sequence}: {name}", []).append(ms)
+                    print(f"{sequence:>12} {number}/{args.rounds}: longest silence at the RTI reader {silence:.0f} ms ("
+                          + ", ".join(f"{name} {ms:.0f}" for name, ms in measured) + ")", flush=True)
+        except (TimeoutError, RunFailed, RuntimeError) as error:
+            print(f"{PROG}: {error}", file=sys.stderr)
+            return 1
+        finally:
+            system.stop(args.log_dir)
+        reference = no_fault_reference(system.rti.received, runs)
+        problems = check(system)
+        stale = stale_commands(system, runs)
+        if stale:
+            problems.append(f"{len(stale)} command(s) answered a backlog: {'; '.join(stale[:3])}")
+        stale_ignored = len(system.platform.records("stale_command"))
+    load = os.getloadavg()
+    print(f"\ncollision_avoidance fault sequences, redundant system on loopback, RTI reader (EXCLUSIVE, 300 ms lease), "
+          f"freezes of {args.freeze_s:g} s, {os.cpu_count()} CPU(s), load average {load[0]:.1f} {load[1]:.1f}")
+    for sequence, values in silences.items():
+        print(f"  {sequence + ':':<14} longest silence {stats(values)}")
+    print("  by phase (longest silence in each):")
+    for name, values in phases.items():
+        print(f"    {name + ':':<52} {stats(values)}")
+    print(f"  reference, the same run with no fault (10 commands before each sequence, {reference[1]:.0f} s in all): "
+          f"longest silence {reference[0]:.0f} ms")
+    every = [value for values in silences.values() for value in values]
+    print(f"  stale commands ignored by the platform: {stale_ignored}")
+    print("  checks: " + ("; ".join(problems) if problems else
+                          "command numbers never went back, every command answered a fresh object list, "
+                          "no alert state shown twice, no stale alert"))
+    p99_measured = percentile(every, 0.99)
+    p99 = float("nan") if p99_measured is None else p99_measured
+    print(f"  goal p99 <= {SEQUENCE_GOAL_MS:.0f} ms: {'met' if p99 <= SEQUENCE_GOAL_MS else 'NOT met'}")
+    print(f"failover_p99_ms={p99:.0f}")
+    return 1 if problems else 0
 
 
 def check(system: System) -> list[str]:
@@ -241,12 +534,30 @@ def main(argv: list[str] | None = None) -> int:
     add_domain_option(parser, 87, "DDS domain id")
     parser.add_argument("--timeout", type=float, default=60.0, help="seconds to wait for each step (default 60)")
     add_log_dir_option(parser, help="write every process's output (.log) and status records (.jsonl) there")
+    parser.add_argument("--sequences", default="", metavar="LIST",
+                        help=f"fault sequences measured at an RTI reader instead of the kills: {','.join(SEQUENCES)} "
+                             "or all (needs pip rticonnextdds-connector)")
+    parser.add_argument("--rounds", type=int, default=5, help="with --sequences: rounds of them (default 5)")
+    parser.add_argument("--freeze-s", type=float, default=8.0,
+                        help="with --sequences: seconds an instance stays frozen (default 8)")
     args = parser.parse_args(argv)
     if args.log_dir is not None and (problem := output_folder_problem(args.log_dir, create=True)):
         parser.error(f"--log-dir {args.log_dir}: {problem}")  # before the run, not after it
     if args.failovers < 1:
         print(f"{PROG}: --failovers {args.failovers}: expected 1 or more", file=sys.stderr)
         return 2
+    if args.sequences:
+        sequences = list(SEQUENCES) if args.sequences == "all" else args.sequences.split(",")
+        unknown = [name for name in sequences if name not in SEQUENCES]
+        if unknown:
+            print(f"{PROG}: --sequences {args.sequences}: unknown {', '.join(unknown)} (expected a list of "
+                  f"{', '.join(SEQUENCES)}, or all)", file=sys.stderr)
+            return 2
+        if args.rounds < 1 or not args.freeze_s > 0.3:
+            print(f"{PROG}: --rounds {args.rounds} --freeze-s {args.freeze_s:g}: expected 1 or more rounds and "
+                  "freezes longer than the 300 ms lease", file=sys.stderr)
+            return 2
+        return run_sequences(args, sequences)
     return run(args)
 
 

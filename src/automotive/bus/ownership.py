@@ -91,7 +91,7 @@ class StallGuard:
     - older than the lease, stamped after this instance started: missed while stalled, dropped (``stalled``);
     - stamped before this instance started (less the lease): no stall of ours explains it, as its readers are volatile
       and matched after the start: the writer's clock is wrong (or the writer lies). Reported as a bad sample and
-      dropped, without counting as a stall (which would make collision_avoidance step down);
+      dropped, without counting as a stall (which would make collision_avoidance rejoin);
     - stamped more than the lease in the future: the clocks disagree by more than the redundant mode allows (README).
       Reported as a bad sample and dropped.
     """
@@ -126,6 +126,11 @@ class StallGuard:
             self.log.warning("skipped %d %s older than the %.0f ms lease: this instance was stalled and the other "
                              "one answered them", late, what, self.max_age_ns / 1e6)
         return kept
+
+    def outdated(self, source_ns: int, now_ns: int) -> bool:
+        """True when an output stamped ``now_ns`` would answer input stamped ``source_ns`` older than the lease (the
+        instance stalled between taking it and answering it)."""
+        return bool(self.max_age_ns) and now_ns - source_ns > self.max_age_ns
 
     def _report(self, reader: Any, info: Any, age_ns: int) -> None:
         if age_ns < 0:
