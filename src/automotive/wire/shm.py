@@ -521,6 +521,11 @@ class SharedReader:
         self._waking = threading.Thread(target=run, name=f"shm-wake {self.memory.topic}", daemon=True)
         self._waking.start()
 
+    def wait(self, seconds: float) -> bool:
+        """Wait at most ``seconds`` for samples sent (or a publisher leaving): for a subscriber without :meth:`wake`
+        that takes on a thread of its own."""
+        return bool(_wait(self.listener, seconds))
+
     def take(self, limit: int = 16) -> LentShared:
         """Up to ``limit`` samples (at most BORROWED at once), valid inside ``with reader.take() as samples:``."""
         held: list[Any] = []
