@@ -27,6 +27,7 @@ from automotive.wire import shm
 from automotive.wire.rawsample import RawWriter
 
 T = TypeVar("T")
+LOCAL_FIRST_S = 0.005  # the longest a DDS write waits for the shared-memory readers to release the sample
 
 
 def _listener_report(endpoint: DataWriter[Any] | DataReader[Any], event: str) -> Callable[[Any], None]:
@@ -122,9 +123,10 @@ class FlowWriter(_SharedEnd):
         its source timestamp (ns); ``write_dds(stamp)`` writes the same bytes on DDS, with that source timestamp
         (None: it stamps them itself), and returns the timestamp. Return the timestamp (now when nobody reads it).
 
-        With subscribers in shared memory and DDS readers both, the shared sample is sent first and only then is the
-        sample written on DDS, from the caller's own bytes (never from the loan, which is the subscribers' once sent):
-        a DDS reader joining on the host (another vendor, a tool) costs the shared-memory readers no latency."""
+        With subscribers in shared memory and DDS readers both, the shared sample is sent first, and the sample is
+        written on DDS once the subscribers released it (at most LOCAL_FIRST_S later), from the caller's own bytes
+        (never from the loan, which is the subscribers' once sent): a DDS reader joining on the host (another vendor,
+        a tool) costs the shared-memory readers no latency."""
         dds_readers = self.dds_readers.count()
         if not dds_readers:
             self._unregister()
@@ -133,6 +135,9 @@ class FlowWriter(_SharedEnd):
             stamp = shared.publish(length, fill)
             self.sent_shared += 1
             if dds_readers:
+                # The DDS write (a 4 MiB copy, its UDP fragments, the DDS readers' reception) would compete for the
+                # CPU with the local readers' wake-up: it waits until they have the sample, a few ms at most.
+                shared.wait_consumed(LOCAL_FIRST_S)
                 write_dds(stamp)
                 self.sent_dds += 1
         elif dds_readers:
