@@ -20,7 +20,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from cyclonedds.qos import Policy
+from cyclonedds.qos import Policy, Qos
 from dds_helpers import make_bus, wait_until
 from lidar_helpers import Clouds
 from shm_helpers import files_of
@@ -166,3 +166,38 @@ def test_the_monitor_reads_the_lidar_and_the_camera_through_shared_memory(  # ty
     assert frames > 0 and clouds > 0 and (frames_on_dds, clouds_on_dds) == (0, 0), (frames, clouds)
     assert fusion.stop(signal.SIGTERM) == 0, fusion.output
     assert files_of(prefix) == set()
+
+
+def test_the_dds_write_waits_for_the_shared_memory_readers_to_release_a_sample_and_no_longer(
+        domain_id: int, prefix: str) -> None:
+    """What FlowWriter.publish waits on before a DDS write: the release of the sample by every subscriber it went to
+    (their acknowledgements; the same for a keep-last writer, which flow control never waits for), bounded."""
+    memory = shm.SharedMemory("test", domain_id, "Released", prefix)
+    writer = shm.SharedWriter(memory, 8, Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(1)),
+                              lambda: True)
+    readers = [shm.SharedReader(memory, Qos(Policy.History.KeepLast(4))) for _ in range(2)]
+
+    def fill(view: memoryview) -> int:
+        view[:] = bytes(8)
+        return 1
+
+    try:
+        writer.publish(8, fill)
+        for reader in readers:
+            with reader.take() as samples:
+                assert len(samples) == 1
+        started = time.monotonic()
+        writer.wait_consumed(60.0)  # both released it already: their acknowledgements are there
+        assert time.monotonic() - started < 30.0
+
+        writer.publish(8, fill)
+        with readers[0].take() as samples:  # one subscriber holds it while the writer waits: the bound ends the wait
+            assert len(samples) == 1
+            writer.wait_consumed(0.05)
+        with readers[1].take() as samples:
+            assert len(samples) == 1
+    finally:
+        writer.close()
+        for reader in readers:
+            reader.close()
+        memory.close()
