@@ -1,8 +1,8 @@
 """automotive bench system: the whole system's cost (issue 32's benchmark). Its arithmetic and report on made-up
 records and figures; its options refused in one line; and two short runs for real, one with the shipped transport and
 one with --transport udp, which print every application, the camera's and the LiDAR's lines and the last line, and
-leave no namespace, folder or shared-memory file behind. The figures themselves are a benchmark's, not a test's:
-nothing here asserts a time or a CPU share.
+leave no namespace, folder or shared-memory file behind; and one with --dds-readers and the C reference. The figures
+themselves are a benchmark's, not a test's: nothing here asserts a time or a CPU share.
 """
 
 from __future__ import annotations
@@ -119,7 +119,19 @@ def test_report_table_goals_and_last_line(capsys: pytest.CaptureFixture[str]) ->
     assert rows[LAUNCHER] == "0.50"
     assert any(line.startswith("whole system") and "10.00" in line for line in out)
     assert sum(1 for line in out if line.startswith("goal met: ")) == 3
-    assert out[-1] == "system_cpu_pct=10.00"
+    assert out[-7:] == ["camera_p50_ms=0.300", "camera_p99_ms=1.500", "c_one_way_p50_ms=-", "c_one_way_p99_ms=-",
+                        "camera_vs_c_p50=-", "camera_vs_c_p99=-", "system_cpu_pct=10.00"]
+
+    beside = figures(cpu=1.25)
+    beside.reference, beside.dds_readers = (0.6, 3.0, 9.0), "camera_frames=10 lidar_clouds=1200"
+    beside.written = {"lidar": "1,500 clouds through shared memory, 1,490 written on DDS"}
+    assert system.report(beside, as_json=False) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "foreign DDS readers on the host: camera_frames=10 lidar_clouds=1200" in out
+    assert "lidar: 1,500 clouds through shared memory, 1,490 written on DDS" in out
+    assert any(line.startswith("goal met: the camera's p50 with foreign DDS readers") for line in out), out
+    assert out[-5:-1] == ["c_one_way_p50_ms=0.600", "c_one_way_p99_ms=3.000", "camera_vs_c_p50=0.50",
+                          "camera_vs_c_p99=0.50"]
 
     assert system.report(figures(seconds=8.0), as_json=True) == 0
     out = capsys.readouterr().out.splitlines()
@@ -128,6 +140,7 @@ def test_report_table_goals_and_last_line(capsys: pytest.CaptureFixture[str]) ->
     assert record["system_cpu_pct"] == 8.0 and set(record["cpu_pct"]) == set(APPS)
     assert record["camera"]["latency_p50_ms"] == 0.3 and record["lidar"]["hop_p50_ms"] == 0.2
     assert record["goals"] == {"system_cpu": None, "camera_latency": None, "lidar_hop": None}
+    assert record["c_one_way_ms"] is None and record["camera_vs_c"] == {"p50": None, "p99": None}
 
 
 # -- options ---------------------------------------------------------------------------------------------------------
@@ -204,6 +217,28 @@ def test_a_short_run_shows_every_application_and_the_last_line_and_leaves_nothin
     assert left_in(tmpdir) == []
     assert "bench-system-" not in namespaces()
     assert not files_of(prefix)  # a clean stop leaves only iceoryx2's global file of the prefix
+
+
+@pytest.mark.skipif(NAMESPACES is not None, reason=f"the system benchmark: {NAMESPACES}")
+def test_a_short_run_with_dds_readers_has_them_served_on_dds_and_prints_the_reference(
+        tmp_path: Path, domain_id: int, prefix: str) -> None:
+    """--dds-readers: the foreign readers receive, the LiDAR writes on DDS for them beside shared memory; the C
+    reference's lines come before the last line (ddsperf is a dependency of the benchmarks: Debian's
+    cyclonedds-tools)."""
+    tmpdir, work = tmp_path / "tmpdir", tmp_path / "work"
+    tmpdir.mkdir()
+    out = bench("system", "--dds-readers", "--reference-seconds", "3", "--warmup", "3", "--seconds", "8", "--domain",
+                str(domain_id), "--shm-prefix", prefix, "--work", str(work), tmpdir=tmpdir).stdout.splitlines()
+    check_short_run(out)
+    readers = next((line for line in out if line.startswith("foreign DDS readers on the host: ")), "")
+    clouds = re.search(r"lidar_clouds=(\d+)", readers)
+    assert clouds and int(clouds.group(1)) > 0, out
+    lidar = next((line for line in out if line.startswith("lidar: ")), "")
+    written = re.fullmatch(r"lidar: ([\d,]+) clouds through shared memory, ([\d,]+) written on DDS", lidar)
+    assert written and int(written.group(2).replace(",", "")) > 0, out
+    assert any(line.startswith("reference: ddsperf (C) one way at 4,196,372 bytes, 30 Hz") for line in out), out
+    assert re.fullmatch(r"camera_vs_c_p99=\d+\.\d\d", out[-2]), out
+    assert left_in(tmpdir) == [] and "bench-system-" not in namespaces()
 
 
 @pytest.mark.skipif(NAMESPACES is not None, reason=f"the system benchmark: {NAMESPACES}")

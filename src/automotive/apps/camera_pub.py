@@ -75,8 +75,10 @@ def body(app: Application) -> None:
     writer = FrameWriter(flow.writer, FramePattern(size))
 
     def write(id: int, seqnum: int) -> int:
+        # On DDS the frame is written from the pattern stream (no copy), after it went through shared memory, with
+        # the same header and source timestamp: the same bytes on both paths.
         return flow.publish(writer.serialized_length, lambda view: writer.build_pattern_frame(view, id, seqnum),
-                            lambda: writer.write_pattern(id, seqnum))
+                            lambda stamp: writer.write_pattern(id, seqnum, stamp))
 
     tune_process_for_large_frames()
     app.ready()

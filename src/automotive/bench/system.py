@@ -3,6 +3,7 @@
     automotive bench system                            the shipped defaults: 60 s measured after a 15 s warm-up
     automotive bench system --transport udp            the large flows over DDS only, as before shared memory
     automotive bench system --seconds 120 --json       longer; the figures as one JSON line instead of the table
+    automotive bench system --dds-readers              with foreign DDS readers of the camera and the LiDAR beside
 
 Starts the system as `automotive launch` does (all eight applications, camera included, shipped properties;
 background mode, the HMI's console box, --quiet: the applications' lines go to their log files only) in a network
@@ -22,14 +23,29 @@ every 15 s:
   timestamp): p50 and p99 of the clouds received during the measurement. Sensor fusion also records each vision sample
   it takes (one short JSON line each): a little CPU of its own, in its figure.
 
+--dds-readers adds, for the whole run (from the moment the system runs), a foreign DDS participant on the system's
+host reading the camera's frames and the LiDAR's clouds (automotive.bench.dds_readers: a plain Cyclone DDS Python
+reader of each on Cyclone's default QoS, outside the project's runtime, as `cyclonedds subscribe` or another vendor's
+default reader joins; its Cyclone configured for loopback with a peer, as the shipped loopback mode's participants
+are): the writers serve it on DDS beside their shared-memory readers. The run then also says what it
+received and what the camera and the LiDAR wrote on DDS (their exit lines), and the camera goal holds with it.
+
+The reference, measured in the same run after the system stopped (--reference-seconds, 20; 0: none): Cyclone's C
+tool ddsperf carrying the camera's serialized frame (4 MiB) at 30 Hz over loopback (ping/pong, round trip / 2), and
+the camera's p50 and p99 over it (camera_vs_c_p50, camera_vs_c_p99): machines of one kind differ, so a figure is
+judged beside C measured on the same machine at the same time.
+
 The work folder (the records, the launcher's logs) is temporary, removed at the end (also on an error, Ctrl-C or
 SIGTERM), or --work DIR, a new or empty folder that is kept.
 
 Goals (issue 32, the shipped defaults, over 60 s): the whole system (the sum over the eight applications) at most
 12 % of one core; the camera's p50 at most 0.5 ms and p99 at most 2 ms at 30 frames/s (within 1), without a gap or a
 mismatch; the LiDAR's hop p50 at most the camera's p50 (to the microsecond, as printed). A run shorter than 60 s
-prints its figures and "too short to judge" for each goal. The last line is system_cpu_pct=<the sum over the eight
-applications, % of one core>; the exit code is 0 once it is printed, whatever the verdicts.
+prints its figures and "too short to judge" for each goal. Before the last line come camera_p50_ms=, camera_p99_ms=,
+c_one_way_p50_ms=, c_one_way_p99_ms=, camera_vs_c_p50= and camera_vs_c_p99= ("-" for what was not measured; with
+--json they are in the JSON line: c_one_way_ms, camera_vs_c). The
+last line is system_cpu_pct=<the sum over the eight applications, % of one core>; the exit code is 0 once it is
+printed, whatever the verdicts.
 """
 
 from __future__ import annotations
@@ -37,6 +53,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 import time
 from collections.abc import Iterable
@@ -44,6 +61,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from automotive.bench.alert_latency import ddsperf_one_way
+from automotive.bench.dds_readers import READY_LINE
+from automotive.bench.ddsperf import DDSPERF_URI
 from automotive.bench.soak import (
     LAUNCHER,
     Series,
@@ -57,7 +77,8 @@ from automotive.bus.cli import ArgumentParser, add_domain_option
 from automotive.bus.errors import ConfigError
 from automotive.bus.latency import percentile
 from automotive.bus.properties import Properties
-from automotive.tools.children import APPS, work_folder
+from automotive.tools.children import APPS, Child, work_folder
+from automotive.wire.camera import FrameCodec, frame_type
 
 PROG = "automotive bench system"
 TRANSPORTS = ("auto", "udp", "shm")  # automotive.wire.shm.TRANSPORTS
@@ -72,6 +93,15 @@ GOAL_CAMERA_P50_MS = 0.5
 GOAL_CAMERA_P99_MS = 2.0
 GOAL_CAMERA_RATE = 30.0  # frames/s (camera_pub's config.pubInterval=33 ms: 30.3)
 CAMERA_RATE_TOLERANCE = 1.0
+REFERENCE_RATE_HZ = 30  # the camera's rate
+DDS_READERS_READY_S = 60.0  # discovery and the first frame of both flows
+# The foreign readers' Cyclone configuration: loopback with a peer, as the shipped loopback mode's participants expect
+# (the system's namespace has only lo, where Cyclone's defaults would find no one); indexes probed as far as ours.
+DDS_READERS_URI = DDSPERF_URI.replace("<ParticipantIndex>auto</ParticipantIndex>",
+                                      "<ParticipantIndex>auto</ParticipantIndex>"
+                                      "<MaxAutoParticipantIndex>120</MaxAutoParticipantIndex>")
+# the writers' exit lines (automotive.apps.camera_pub, automotive.apps.lidar)
+WRITTEN_ON_DDS = re.compile(r"shared memory: (\d+) (frames|clouds) sent, (\d+) written on DDS")
 
 
 def shm_prefix(text: str) -> str:
@@ -214,6 +244,16 @@ class Figures:
     camera: Camera
     lidar: Lidar
     ended: dict[str, str] = field(default_factory=dict)  # application -> how it ended during the run
+    dds_readers: str | None = None  # with --dds-readers: what the foreign readers received (their last line)
+    written: dict[str, str] = field(default_factory=dict)  # writer -> its exit line (shared memory and DDS counts)
+    reference: tuple[float, float, float] | None = None  # ddsperf's one-way p50, p99, max (ms) at the camera's size
+
+    def ratios(self) -> tuple[float | None, float | None]:
+        """The camera's p50 and p99 over the C reference's."""
+        camera, reference = self.camera, self.reference
+        if reference is None or camera.p50_ms is None or camera.p99_ms is None or not reference[0] or not reference[1]:
+            return None, None
+        return camera.p50_ms / reference[0], camera.p99_ms / reference[1]
 
     @property
     def system_cpu_pct(self) -> float:
@@ -234,7 +274,9 @@ class Figures:
         cpu_met = self.system_cpu_pct <= GOAL_SYSTEM_CPU_PCT and not trouble
         ms = "-" if camera.p50_ms is None else f"{camera.p50_ms:.3f}"
         ms99 = "-" if camera.p99_ms is None else f"{camera.p99_ms:.3f}"
-        camera_text = (f"the camera's p50 at most {GOAL_CAMERA_P50_MS:g} ms and p99 at most {GOAL_CAMERA_P99_MS:g} ms "
+        beside = " with foreign DDS readers of the camera and the LiDAR on the host" if self.dds_readers else ""
+        camera_text = (f"the camera's p50{beside} at most {GOAL_CAMERA_P50_MS:g} ms and p99 at most "
+                       f"{GOAL_CAMERA_P99_MS:g} ms "
                        f"at {GOAL_CAMERA_RATE:g} frames/s, no gap or mismatch (this run: {ms} / {ms99} ms at "
                        f"{camera.rate:.1f} frames/s, {camera.gaps} gaps, {camera.mismatches} mismatches)")
         camera_met = (camera.p50_ms is not None and camera.p99_ms is not None
@@ -266,6 +308,11 @@ class Figures:
                 "lidar": {"clouds": lidar.clouds, "clouds_per_s": round(lidar.rate, 2),
                           "hop_p50_ms": rounded(lidar.p50_ms), "hop_p99_ms": rounded(lidar.p99_ms)},
                 "ended": self.ended,
+                "dds_readers": self.dds_readers, "written": self.written,
+                "c_one_way_ms": None if self.reference is None else {
+                    "p50": rounded(self.reference[0]), "p99": rounded(self.reference[1]),
+                    "max": rounded(self.reference[2])},
+                "camera_vs_c": dict(zip(("p50", "p99"), (rounded(ratio, 2) for ratio in self.ratios()))),
                 "goals": {goal.name: None if goal.met is None else "met" if goal.met else "not-met"
                           for goal in self.goals(judge)}}
 
@@ -288,12 +335,34 @@ def report(figures: Figures, as_json: bool) -> int:
         print()
         print(figures.camera.line())
         print(figures.lidar.line())
+        if figures.dds_readers is not None:
+            print(f"foreign DDS readers on the host: {figures.dds_readers}")
+        for writer, line in figures.written.items():
+            print(f"{writer}: {line}")
+        if figures.reference is not None:
+            p50, p99 = figures.ratios()
+            print(f"reference: ddsperf (C) one way at {camera_frame_bytes():,} bytes, {REFERENCE_RATE_HZ} Hz, "
+                  f"loopback: p50 {figures.reference[0]:.3f} / p99 {figures.reference[1]:.3f} / max "
+                  f"{figures.reference[2]:.3f} ms; the camera over it: p50 {_ratio(p50)}, p99 {_ratio(p99)}")
         for goal in figures.goals(judge):
             print(goal.line())
         if not judge:
             print(f"too short to judge: the goals are over {GOAL_SECONDS:g} s (this run: {figures.seconds:.0f} s)")
+    if not as_json:  # the JSON line has them
+        p50, p99 = figures.ratios()
+        reference = figures.reference
+        for name, value in (("camera_p50_ms", figures.camera.p50_ms), ("camera_p99_ms", figures.camera.p99_ms),
+                            ("c_one_way_p50_ms", reference[0] if reference else None),
+                            ("c_one_way_p99_ms", reference[1] if reference else None)):
+            print(f"{name}={'-' if value is None else f'{value:.3f}'}")
+        print(f"camera_vs_c_p50={_ratio(p50)}")
+        print(f"camera_vs_c_p99={_ratio(p99)}")
     print(f"system_cpu_pct={figures.system_cpu_pct:.2f}")
     return 0
+
+
+def _ratio(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
 
 
 def cpu_so_far(series: list[Series]) -> float:
@@ -356,17 +425,68 @@ def bench(args: argparse.Namespace) -> int:
         return run(args, work)
 
 
+def camera_frame_bytes() -> int:
+    """A serialized frame of the shipped camera (config.imageSize=full): what the reference carries."""
+    codec = FrameCodec(frame_type("full"))
+    return (codec.header_length + codec.size + 3) & ~3
+
+
+def start_dds_readers(namespace: str, domain: int) -> Child:
+    """The foreign DDS readers (automotive.bench.dds_readers) in the system's namespace, once both matched a writer."""
+    readers = Child("dds-readers", ["ip", "netns", "exec", namespace, sys.executable, "-m",
+                                    "automotive.bench.dds_readers", "--domain", str(domain)],
+                    env=dict(system_env(), CYCLONEDDS_URI=DDS_READERS_URI))
+    try:
+        readers.wait_for(READY_LINE, timeout=DDS_READERS_READY_S)
+    except AssertionError:
+        print(f"  the foreign DDS readers matched no camera or no LiDAR within {DDS_READERS_READY_S:g} s: measuring "
+              "anyway", flush=True)
+    return readers
+
+
+def stop_dds_readers(readers: Child) -> str:
+    """Stop the foreign readers; what they received (their last line)."""
+    readers.stop(timeout=10)
+    return next((line.split("dds_readers ", 1)[1].strip() for line in reversed(readers.lines)
+                 if "dds_readers " in line), "no count (they did not say)")
+
+
+def written_lines(log_dir: Path) -> dict[str, str]:
+    """The camera's and the LiDAR's exit lines: how many samples went through shared memory and on DDS."""
+    found = {}
+    for writer in ("camera_pub", "lidar"):
+        path = log_dir / f"{writer}.log"
+        text = path.read_text(errors="replace") if path.exists() else ""
+        matches = WRITTEN_ON_DDS.findall(text)
+        if matches:
+            sent, unit, dds = matches[-1]
+            found[writer] = f"{int(sent):,} {unit} through shared memory, {int(dds):,} written on DDS"
+    return found
+
+
 def run(args: argparse.Namespace, work: Path) -> int:
     camera_path, lidar_path = work / CAMERA_RECORDS, work / LIDAR_RECORDS
     launch_args = ["--stats-dir", f"camera_sub:{work}", "--stats-dir", f"sensor_fusion:{work}",
                    *launch_overrides(args.transport, args.shm_prefix)]
-    with system_in_namespace(PROG, f"bench-system-{os.getpid()}", args.domain, work, launch_args,
-                             system_env()) as series:
+    namespace = f"bench-system-{os.getpid()}"
+    dds_readers: str | None = None
+    with system_in_namespace(PROG, namespace, args.domain, work, launch_args, system_env()) as series:
         kept = f"; work folder {work}" if args.work is not None else ""
-        print(f"transport {args.transport}: warm-up {args.warmup:g} s, then {args.seconds:g} s measured{kept}",
-              flush=True)
-        warm_up(series, args.warmup)
-        start, end = measure(series, args.seconds, camera_path)
+        readers = start_dds_readers(namespace, args.domain) if args.dds_readers else None
+        try:
+            print(f"transport {args.transport}{', foreign DDS readers of the camera and the LiDAR' if readers else ''}"
+                  f": warm-up {args.warmup:g} s, then {args.seconds:g} s measured{kept}", flush=True)
+            warm_up(series, args.warmup)
+            start, end = measure(series, args.seconds, camera_path)
+        finally:
+            if readers is not None:
+                dds_readers = stop_dds_readers(readers)
+    reference = None
+    if args.reference_seconds > 0:
+        print(f"reference: ddsperf at the camera's size and rate, {args.reference_seconds} s", flush=True)
+        reference = ddsperf_one_way(camera_frame_bytes(), args.reference_seconds, args.domain, REFERENCE_RATE_HZ)
+        if reference is None:
+            print("reference: not measured (no ddsperf: Debian's cyclonedds-tools)", flush=True)
     apps = [one for one in series if one.name != LAUNCHER]
     launcher = next((one for one in series if one.name == LAUNCHER), None)
     figures = Figures(
@@ -375,7 +495,8 @@ def run(args: argparse.Namespace, work: Path) -> int:
         launcher_cpu_pct=launcher.cpu_percent() if launcher is not None and len(launcher.times_s) >= 2 else None,
         camera=Camera.of(status_records.read(camera_path), start, end),
         lidar=Lidar.of(status_records.read(lidar_path, "lidar"), int(start * 1e9), int(end * 1e9)),
-        ended={one.name: one.ended for one in apps if one.ended})
+        ended={one.name: one.ended for one in apps if one.ended},
+        dds_readers=dds_readers, written=written_lines(work / "logs"), reference=reference)
     return report(figures, args.json)
 
 
@@ -384,6 +505,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--transport", choices=TRANSPORTS, default="auto",
                         help="config.transport of the large flows' applications (default auto, the shipped one)")
     parser.add_argument("--seconds", type=float, default=GOAL_SECONDS, help="how long to measure (default 60)")
+    parser.add_argument("--dds-readers", action="store_true",
+                        help="foreign DDS readers of the camera and the LiDAR on the system's host for the whole run "
+                             "(a plain Cyclone DDS Python reader of each, Cyclone's default QoS)")
+    parser.add_argument("--reference-seconds", type=int, default=20, metavar="S",
+                        help="how long the C reference (ddsperf at the camera's size and rate) runs after the system "
+                             "(default 20; 0: none)")
     parser.add_argument("--warmup", type=float, default=15.0,
                         help="seconds after the system runs before the measurement (default 15)")
     parser.add_argument("--json", action="store_true",
@@ -395,6 +522,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the run's work folder (the status records, the logs): a new or empty folder, kept "
                              "(default: a temporary one, removed at the end)")
     args = parser.parse_args(argv)
+    if args.reference_seconds < 0:
+        parser.error(f"--reference-seconds {args.reference_seconds}: expected 0 or more")
     if not args.seconds > 0 or not args.warmup >= 0:
         parser.error(f"--seconds {args.seconds:g} and --warmup {args.warmup:g}: expected more than 0 and 0 or more")
     check_work_folder(parser, args.work)

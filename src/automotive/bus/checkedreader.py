@@ -152,12 +152,18 @@ class CheckedReader(DataReader[T]):
         self.reporter = reporter  # None: the process's reporter
         self._writer_names = WriterNames(self)
         self._views_decoder: Decoder | None = None  # use_views()
+        self._skip_writer: Callable[[int], bool] | None = None  # skip_writers()
         super().__init__(*args, **kwargs)
 
     @property
     def writer_names(self) -> WriterNames:
         """The names of this reader's writers and of their participants, as the reader knows them."""
         return self._writer_names
+
+    def skip_writers(self, skip: Callable[[int], bool]) -> None:
+        """Leave out, before decoding and uncounted, the data of the writers (publication handles) for which
+        ``skip`` is true: the DDS copies of samples that reached this process another way (shared memory)."""
+        self._skip_writer = skip
 
     def use_views(self) -> CheckedReader[T]:
         """Give this reader's samples with their sequences of fixed-size structs as read-only numpy structured
@@ -206,10 +212,13 @@ class CheckedReader(DataReader[T]):
         if not fetched:
             return None
         samples: list[Any] = []
+        skip = self._skip_writer
         for sample in fetched:
             if isinstance(sample, InvalidSample):
                 samples.append(sample)
                 continue
+            if skip is not None and skip(sample.sample_info.publication_handle):
+                continue  # came another way (Cyclone decoded it already: the gate is closed)
             if self._views_decoder is not None:  # the gate is closed: views made from Cyclone's dataclasses
                 info = sample.sample_info
                 try:
@@ -233,7 +242,10 @@ class CheckedReader(DataReader[T]):
         data_type = self.topic.data_type
         decode = self._views_decoder or decoder(data_type)
         samples: list[Any] = []
+        skip = self._skip_writer
         for data, info in fetched:
+            if skip is not None and info.valid_data and skip(info.publication_handle):
+                continue  # came another way: never decoded
             if not info.valid_data:
                 samples.append(InvalidSample(self._key(data, info), info))
                 continue

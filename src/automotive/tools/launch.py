@@ -115,7 +115,7 @@ MONITOR_PORT = 8780  # the monitor's default (automotive.tools.monitoring.server
 # The monitor's line that gives its page's URL (automotive.tools.monitor.URL_LINE): said once by the launcher.
 MONITOR_URL_LINE = re.compile(r"^automotive monitor: the page is on (\S+)$")
 # The -D settings of every application that the monitor takes too (it refuses keys it does not read).
-MONITOR_KEYS = ("config.domainId",)
+MONITOR_KEYS = ("config.domainId", "config.transport", "config.shmPrefix")  # shared memory: as the apps
 LAUNCHER_LABEL = "launch"
 # The launcher's line once every application is started: what a program driving the launcher waits for.
 RUNNING_LINE = rf"^{LAUNCHER_LABEL}\s+\| \d+ application\(s\) running"

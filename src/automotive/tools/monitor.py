@@ -18,7 +18,9 @@ network options), so it sees what the applications see. It reads:
 - the system's flows with its own best-effort raw readers (automotive.tools.monitoring.probes): each flow's bytes/s,
   samples/s and last sample's age, and the vehicle (the alert and, in redundant mode, its owner; speed, steer,
   blinker; the fused objects; the LiDAR picture), decoding only what it shows. It never reads the camera's frames
-  unless asked (--camera): their rate and latency come from camera_sub's /diagnostics.
+  unless asked (--camera): their rate and latency come from camera_sub's /diagnostics. The LiDAR's clouds and the
+  camera's frames of writers on its host come through shared memory, as the recorder reads them (config.transport,
+  config.shmPrefix): the monitor makes no writer of its host write them on DDS.
 
 Which writer/reader pairs match is its judgement by the DDS rules (automotive.tools.monitoring.rules); for every pair
 of the same topic that does not, it gives the reasons in words, offered against requested. It writes no data: only its
@@ -47,12 +49,13 @@ from automotive.bus.cli import EXIT_BAD_INPUT
 from automotive.bus.console import LOG_LEVEL_VARIABLE
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
+from automotive.tools.flows import check_transport
 from automotive.tools.monitoring.discovery import DomainView
 from automotive.tools.monitoring.model import Snapshot
 from automotive.tools.monitoring.server import DEFAULT_BIND, DEFAULT_PORT, PageServer, bind_problem, describe
 from automotive.tools.monitoring.text import render
 
-PROPERTY_KEYS = PropertyKeys.of()
+PROPERTY_KEYS = PropertyKeys.of("config.transport", "config.shmPrefix")
 DEFAULT_WAIT_S = 3.0  # discovery on one host takes well under a second; the programs report every second
 MAX_WAIT_S = 3600.0
 POLL_S = 0.5
@@ -73,7 +76,16 @@ def signature(snapshot: Snapshot) -> tuple[object, ...]:
 
 def body(app: Application, out: TextIO) -> None:
     args = app.args
-    view = DomainView(app.bus, camera=args.camera)
+    check_transport(app.props)
+    view = DomainView(app.bus, camera=args.camera, props=app.props)
+    try:
+        watch(app, view, out)
+    finally:
+        view.close()
+
+
+def watch(app: Application, view: DomainView, out: TextIO) -> None:
+    args = app.args
     app.optional_topics.add(view.diagnostics.topic.get_name())  # no program reporting is no fault of the monitor's
     app.ready()
     once = args.once or args.json

@@ -239,15 +239,16 @@ class FrameWriter:
         self._view[start:start + self.codec.size] = image
         return self._write_span(self._view, 0, id, seqnum)
 
-    def write_pattern(self, id: int, seqnum: int) -> int:
-        """Write the pattern's frame for ``seqnum`` without copying it; return its timestamp (ns)."""
+    def write_pattern(self, id: int, seqnum: int, stamp: int | None = None) -> int:
+        """Write the pattern's frame for ``seqnum`` without copying it, stamped ``stamp`` (ns; None: now, just before
+        the write); return its timestamp. With the stamp :meth:`build_pattern_frame` gave, the bytes are the same."""
         if self.pattern is None:
             raise ValueError("this FrameWriter has no pattern")
         start = self.pattern.offset(seqnum)  # the frame's image begins header_length bytes further on
         end = start + self.codec.header_length
         borrowed = bytes(self._stream_view[start:end])
         try:
-            return self._write_span(self._stream_view, start, id, seqnum)
+            return self._write_span(self._stream_view, start, id, seqnum, stamp)
         finally:
             self._stream_view[start:end] = borrowed
 
@@ -272,11 +273,11 @@ class FrameWriter:
         """Write a complete serialized frame (as :meth:`build_pattern_frame` makes) on DDS."""
         self._raw.write(view)
 
-    def _write_span(self, view: memoryview, start: int, id: int, seqnum: int) -> int:
-        stamp = time.time_ns()
+    def _write_span(self, view: memoryview, start: int, id: int, seqnum: int, stamp: int | None = None) -> int:
+        stamp = time.time_ns() if stamp is None else stamp
         sec, nanosec = divmod(stamp, 1_000_000_000)
         self.codec.pack_header(view, start, id, sec, nanosec, seqnum)
-        self.write_serialized(view[start:start + self._padded_length])
+        self._raw.write(view[start:start + self._padded_length], stamp)
         return stamp
 
 

@@ -21,12 +21,14 @@ from cyclonedds.sub import DataReader
 
 from automotive.bus import console, latency
 from automotive.bus.app import Application
+from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.status import EventHook
 from automotive.cyclone import serdata
 from automotive.wire import shm
 from automotive.wire.rawsample import RawWriter
 
 T = TypeVar("T")
+LOCAL_FIRST_S = 0.005  # the longest a DDS write waits for the shared-memory readers to release the sample
 
 
 def _listener_report(endpoint: DataWriter[Any] | DataReader[Any], event: str) -> Callable[[Any], None]:
@@ -117,26 +119,30 @@ class FlowWriter(_SharedEnd):
         """Readers of the flow: DDS readers matched, plus shared-memory subscribers of readers without DDS."""
         return len(self.writer.get_matched_subscriptions())
 
-    def publish(self, length: int, fill: Callable[[memoryview], int], write_dds: Callable[[], int]) -> int:
+    def publish(self, length: int, fill: Callable[[memoryview], int], write_dds: Callable[[int | None], int]) -> int:
         """Publish one sample: ``fill(view)`` writes its ``length`` serialized bytes into shared memory and returns
-        its source timestamp (ns); ``write_dds()`` writes it on DDS when no subscriber is on shared memory and
-        returns its timestamp. Return the timestamp (now when nobody reads the flow)."""
+        its source timestamp (ns); ``write_dds(stamp)`` writes the same bytes on DDS, with that source timestamp
+        (None: it stamps them itself), and returns the timestamp. Return the timestamp (now when nobody reads it).
+
+        With subscribers in shared memory and DDS readers both, the shared sample is sent first, and the sample is
+        written on DDS once the subscribers released it (at most LOCAL_FIRST_S later), from the caller's own bytes
+        (never from the loan, which is the subscribers' once sent): a DDS reader joining on the host (another vendor,
+        a tool) costs the shared-memory readers no latency."""
         dds_readers = self.dds_readers.count()
         if not dds_readers:
             self._unregister()
         shared = self.shared
         if shared is not None and shared.subscribers:
-            def fill_and_write(view: memoryview) -> int:
-                stamp = fill(view)
-                if dds_readers:
-                    self.raw.write(view, stamp)
-                    self.sent_dds += 1
-                return stamp
-
-            stamp = shared.publish(length, fill_and_write)
+            stamp = shared.publish(length, fill)
             self.sent_shared += 1
+            if dds_readers:
+                # The DDS write (a 4 MiB copy, its UDP fragments, the DDS readers' reception) would compete for the
+                # CPU with the local readers' wake-up: it waits until they have the sample, a few ms at most.
+                shared.wait_consumed(LOCAL_FIRST_S)
+                write_dds(stamp)
+                self.sent_dds += 1
         elif dds_readers:
-            stamp = write_dds()
+            stamp = write_dds(None)
             self.sent_dds += 1
         else:
             stamp = time.time_ns()
@@ -169,8 +175,8 @@ class FlowWriter(_SharedEnd):
             view[:] = data
             return time.time_ns()
 
-        def write_dds() -> int:
-            stamp = time.time_ns()
+        def write_dds(stamp: int | None) -> int:
+            stamp = time.time_ns() if stamp is None else stamp
             self.raw.write(data, stamp)
             return stamp
 
@@ -184,7 +190,7 @@ class FlowWriter(_SharedEnd):
 class FlowReader(_SharedEnd):
     """The reader of a large flow: a DDS reader (marked when shared memory is used) and a shared-memory subscriber,
     woken by one WaitSet. DDS samples of writers on this host's shared memory are dropped (:meth:`from_shared`):
-    they came through shared memory."""
+    they came through shared memory. A checked reader drops them itself, before decoding or counting them."""
 
     def __init__(self, app: Application, topic: str, reader_qos: Qos,
                  make_reader: Callable[[tuple[Any, ...]], DataReader[Any]]):
@@ -196,6 +202,9 @@ class FlowReader(_SharedEnd):
                                                           lambda memory: shm.SharedReader(memory, reader_qos))
         self.reader = make_reader(self.user_data)
         self.local = shm.LocalWriters(self.reader, self.key)
+        if isinstance(self.reader, CheckedReader) and self.key is not None:
+            # the DDS copies of this host's shared-memory writers' samples: dropped before they are decoded or counted
+            self.reader.skip_writers(self.from_shared)
         self.guard = GuardCondition(app.bus.participant)
         self.deadline = shm.DeadlineWatch(shm.deadline_s(reader_qos),
                                           _listener_report(self.reader, "requested_deadline_missed"))

@@ -402,6 +402,7 @@ class SharedWriter:
             self.publisher.delete()
             raise
         self._pending: dict[int, int] = {}  # sequence % ACK_IDS -> subscribers that have not consumed it yet
+        self._last_left = 0  # subscribers that have not consumed the last sample sent yet (wait_consumed)
         self.sequence = 0
         self.sent = 0  # samples sent through shared memory
 
@@ -433,6 +434,7 @@ class SharedWriter:
         header.sequence = self.sequence
         receivers = sample.assume_init().send()
         self.sent += 1
+        self._last_left = receivers
         if receivers and self.reliable:
             self._pending[self.sequence % ACK_IDS] = receivers
         self.notifier.notify_with_custom_event_id(iox2.EventId.new(SAMPLE_SENT))
@@ -465,6 +467,17 @@ class SharedWriter:
                 return
             self._collect(_wait(self.acks, min(remaining, WAIT_SLICE_S)))
 
+    def wait_consumed(self, timeout_s: float) -> None:
+        """Wait at most ``timeout_s`` until every subscriber the last sample went to has released it (a blocking
+        wait on their acknowledgements, not polling)."""
+        self._collect(self.acks.try_wait())
+        deadline = time.monotonic() + timeout_s
+        while self._last_left > 0 and self.running():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return
+            self._collect(_wait(self.acks, min(remaining, WAIT_SLICE_S)))
+
     def _subscriber_died(self) -> bool:
         """Whether a subscriber's process is gone (its port is removed now): checked while flow control waits."""
         before = self.memory.subscribers
@@ -472,8 +485,11 @@ class SharedWriter:
         return self.memory.subscribers < before
 
     def _collect(self, activations: list[Any]) -> None:
+        last = self.sequence % ACK_IDS
         for activation in activations:
             key = activation.id.as_value
+            if key == last:
+                self._last_left -= activation.count
             left = self._pending.get(key)
             if left is None:
                 continue
@@ -541,6 +557,11 @@ class SharedReader:
 
         self._waking = threading.Thread(target=run, name=f"shm-wake {self.memory.topic}", daemon=True)
         self._waking.start()
+
+    def wait(self, seconds: float) -> bool:
+        """Wait at most ``seconds`` for samples sent (or a publisher leaving): for a subscriber without :meth:`wake`
+        that takes on a thread of its own."""
+        return bool(_wait(self.listener, seconds))
 
     def take(self, limit: int = 16) -> LentShared:
         """Up to ``limit`` samples (at most BORROWED at once), valid inside ``with reader.take() as samples:``."""

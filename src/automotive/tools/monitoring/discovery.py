@@ -35,6 +35,7 @@ from cyclonedds.qos import Policy
 
 from automotive.bus.diagnostics import DIAGNOSTICS_TOPIC
 from automotive.bus.endpoints import Databus
+from automotive.bus.properties import Properties
 from automotive.bus.qos import ROS2_DEFAULT_PROFILE
 from automotive.tools.monitoring.model import (
     STALE_AFTER_S,
@@ -139,7 +140,7 @@ def endpoint_record(sample: Any, kind: str) -> EndpointRecord:
 class DomainView:
     """The monitor's view of its domain, kept up to date by :meth:`poll`; :meth:`snapshot` analyses it."""
 
-    def __init__(self, bus: Databus, camera: bool = False, probes: bool = True):
+    def __init__(self, bus: Databus, camera: bool = False, probes: bool = True, props: Properties | None = None):
         self.bus = bus
         self.lock = threading.RLock()  # a page's server may snapshot from one thread and draw the LiDAR from another
         participant = bus.participant
@@ -162,7 +163,7 @@ class DomainView:
         self.moved: dict[str, float] = {}  # topic -> when a report last showed it moving (monotonic)
         self.problems: list[str] = []  # discovery data that could not be read, said once each
         # The monitor's own raw readers of the system's flows (the camera's only with ``camera``).
-        self.probes = Probes(bus, camera) if probes else None
+        self.probes = Probes(bus, camera, props=props) if probes else None  # props: shared memory too
         self._followed = -FOLLOW_S
 
     def _current(self, name: str) -> list[Any]:
@@ -203,6 +204,11 @@ class DomainView:
     def _problem(self, problem: str) -> None:
         if problem not in self.problems and len(self.problems) < MAX_PROBLEMS:
             self.problems.append(problem)
+
+    def close(self) -> None:
+        """Stop what runs beside the participant (the probes' shared-memory subscribers)."""
+        if self.probes is not None:
+            self.probes.close()
 
     def poll(self) -> None:
         """Take the /diagnostics reports and the probes' samples that arrived; call it at least every second."""

@@ -9,6 +9,13 @@ most every LIDAR_EVERY_S (2 s: within the issue's "at most 1 Hz"; drawing one co
 LiDAR view's renderer (automotive.tools.cloudview) only when its picture is asked for (:meth:`Probes.lidar_png`). The
 camera's frames are read only when asked (``--camera``): even lent, 4 MiB frames cost their reception.
 
+The large flows (the camera's frames, the LiDAR's clouds: ``Flow.shared``) are read through shared memory from the
+writers on the monitor's host, as the recorder and the bridge read them (automotive.wire.shm), when the monitor is given
+its properties: its DDS readers of those flows carry the locality's mark, so a writer on this host writes nothing on
+DDS for the monitor, and their DDS copies of such a writer's samples are left out uncounted. Writers of other hosts and
+vendors are still read over DDS. A shared-memory subscriber is drained by a thread of its own as samples arrive: the
+camera's reliable writer waits for its subscribers, and one taken only at each poll would hold it back.
+
 The readers never slow a writer down and make no writer warn: a writer tells each reader whose request it cannot
 meet (an incompatible QoS, in its /diagnostics), so each asks for less than any writer offers: best effort (a reliable
 writer never waits for it), volatile, any latency budget (an asynchronous writer's too), both data representations, a
@@ -29,6 +36,7 @@ import re
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -39,6 +47,7 @@ from cyclonedds.sub import DataReader
 from automotive.bus import alerts
 from automotive.bus.checkedreader import decoder
 from automotive.bus.endpoints import Databus
+from automotive.bus.properties import Properties
 from automotive.bus.qos import READER_REPRESENTATION
 from automotive.tools.flows import Flow, system_flows
 from automotive.tools.monitoring.model import (
@@ -53,6 +62,7 @@ from automotive.types.Alerts import DriverAlerts
 from automotive.types.Platform import PlatformControl, PlatformStatus
 from automotive.types.Sensor import SensorObjectList
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
+from automotive.wire import shm
 from automotive.wire.rawsample import RawReader, SampleKind
 
 INFINITE_NS = 2**63 - 1
@@ -113,6 +123,36 @@ class Probe:
     exclusive: bool
     strong: bool  # reliable and transient local (the alert's state from before the monitor started)
     keep_latest: bool
+    local: shm.LocalWriters | None = None  # a shared flow's: the writers whose samples come through shared memory
+
+
+class SharedProbe:
+    """The monitor's shared-memory subscriber of one flow, drained on a thread of its own as samples arrive."""
+
+    def __init__(self, memory: shm.SharedMemory, reader: shm.SharedReader,
+                 taken: Callable[[list[shm.SharedSample]], None]):
+        self.memory = memory
+        self.reader = reader
+        self._taken = taken
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"monitor-shm {memory.topic}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            if not self.reader.wait(shm.WAIT_SLICE_S):
+                continue
+            while not self._stop.is_set():
+                with self.reader.take(shm.BORROWED) as samples:
+                    if not samples:
+                        break
+                    self._taken(samples)
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.reader.close()
+        self.memory.close()
 
 
 STRONG_DURABILITY = ("TRANSIENT_LOCAL", "TRANSIENT", "PERSISTENT")
@@ -165,8 +205,13 @@ class Probes:
     A reader is made once discovery shows a writer of its flow (:meth:`follow`), with what matches that writer's
     ownership kind and no more."""
 
-    def __init__(self, bus: Databus, camera: bool = False, log: logging.Logger | None = None):
+    def __init__(self, bus: Databus, camera: bool = False, log: logging.Logger | None = None,
+                 props: Properties | None = None):
+        """``props``: the monitor's properties (config.transport, config.shmPrefix): the large flows of this host are
+        then read through shared memory; None: everything on DDS."""
         self.bus = bus
+        self.props = props
+        self.shared: dict[str, SharedProbe | None] = {}  # topic -> its shared-memory subscriber (None: cannot be)
         self.log = log or logging.getLogger("automotive")
         self.lock = threading.RLock()
         self.problems: list[str] = []
@@ -208,16 +253,57 @@ class Probes:
 
     def _make(self, flow: Flow, exclusive: bool, strong: bool) -> None:
         depth = CAMERA_DEPTH if flow.topic == self.camera_topic else 1 if strong else POLL_DEPTH
+        qos = reader_qos(depth, exclusive, strong)
+        shared = self._shared(flow, qos)
+        if shared is not None:  # marked: a writer on this host serves it through shared memory, not on DDS
+            qos = DataReaderQos(shared.memory.user_data, base=qos)
         try:
             reader: DataReader[Any] = DataReader(self.bus.subscriber, self.bus.topic(flow.topic, flow.data_type),
-                                                 qos=reader_qos(depth, exclusive, strong))
+                                                 qos=qos)
         except Exception as error:  # noqa: BLE001  (a reader Cyclone refuses: said, the others still read)
             problem = f"cannot read {flow.topic}: {error}"
             if problem not in self.problems:
                 self.problems.append(problem)
             return
         keep = flow.data_type in SHOWN or flow.data_type is PointCloud2_
-        self.probes.append(Probe(flow, RawReader(reader), exclusive, strong, keep))
+        local = shm.LocalWriters(reader, shared.memory.key) if shared is not None else None
+        self.probes.append(Probe(flow, RawReader(reader), exclusive, strong, keep, local))
+
+    def _shared(self, flow: Flow, qos: DataReaderQos) -> SharedProbe | None:
+        """The shared-memory subscriber of a shared flow (made once; None without shared memory)."""
+        if not flow.shared or self.props is None:
+            return None
+        if flow.topic not in self.shared:
+            self.shared[flow.topic] = None
+            memory = shm.open_for(self.props, self.bus.name, self.bus.domain_id, flow.topic, self.log)
+            if memory is not None:
+                try:
+                    reader = shm.SharedReader(memory, qos)
+                except shm.Unavailable as error:
+                    memory.close()
+                    shm.unavailable(self.props, flow.topic, str(error), self.log)
+                else:
+                    self.shared[flow.topic] = SharedProbe(memory, reader,
+                                                          lambda samples: self._take_shared(flow, samples))
+        return self.shared[flow.topic]
+
+    def _take_shared(self, flow: Flow, samples: list[shm.SharedSample]) -> None:
+        """Count samples that came through shared memory (the LiDAR's newest kept, a copy, as from DDS)."""
+        with self.lock:
+            now = time.monotonic()
+            counter = self.counters[flow.topic]
+            counter.samples += len(samples)
+            counter.bytes += sum(len(sample.data) for sample in samples)
+            counter.last_at = now
+            if flow.data_type is PointCloud2_:
+                self._keep_data(flow, samples[-1].data, 0, False, now)
+
+    def close(self) -> None:
+        """Stop the shared-memory subscribers (the DDS readers go with the participant)."""
+        for shared in self.shared.values():
+            if shared is not None:
+                shared.close()
+        self.shared.clear()
 
     def _delete(self, probe: Probe) -> None:
         self.probes.remove(probe)
@@ -242,6 +328,8 @@ class Probes:
                                 break
                             newest = None
                             for sample in samples:
+                                if probe.local is not None and probe.local.is_local(sample.writer):
+                                    continue  # came through shared memory: counted there
                                 if sample.kind is SampleKind.DATA:
                                     counter.samples += 1
                                     counter.bytes += len(sample.data)
@@ -260,14 +348,15 @@ class Probes:
                 counter.checkpoint(now)
 
     def _keep(self, probe: Probe, sample: Any, now: float) -> None:
-        topic = probe.flow.topic
-        if probe.flow.data_type is PointCloud2_:
+        self._keep_data(probe.flow, sample.data, sample.writer, probe.exclusive, now)
+
+    def _keep_data(self, flow: Flow, data: Any, writer: int, exclusive: bool, now: float) -> None:
+        if flow.data_type is PointCloud2_:
             if now - self._lidar_kept_at < LIDAR_EVERY_S:
                 return
             self._lidar_kept_at = now
         self._sequence += 1
-        self.latest[topic] = Latest(bytes(sample.data), now, sample.writer, probe.exclusive, self._sequence,
-                                    time.time())
+        self.latest[flow.topic] = Latest(bytes(data), now, writer, exclusive, self._sequence, time.time())
 
     # -- what it measured ---------------------------------------------------------------------------------------------
     def measured(self) -> dict[str, MeasuredFlow]:
