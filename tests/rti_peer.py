@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import os
 import signal
 import sys
 import time
@@ -42,6 +41,8 @@ from typing import Any
 from xml.sax.saxutils import quoteattr
 
 import rticonnextdds_connector as rti
+
+from automotive.bench.rti_reader import own_lines
 
 RTI_XML = Path(__file__).resolve().parent / "rti" / "automotive_rti.xml"
 QOS_LIBRARY = "RtiPeerQos"
@@ -244,18 +245,6 @@ def _sample_label(name: str, sample: Mapping[str, Any], written: Mapping[str, Ma
     return "any", "any"
 
 
-def _own_lines() -> Callable[[str], None]:
-    """This script's lines on the process's stdout, each in one write; from now on whatever writes to file
-    descriptor 1 (RTI's log messages, a piece at a time) goes to stderr."""
-    stdout = os.dup(1)
-    os.dup2(2, 1)
-
-    def say(line: str) -> None:
-        os.write(stdout, (line + "\n").encode())
-
-    return say
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description="One RTI Connext participant in a process of its own.")
     parser.add_argument("--domain", type=int, required=True)
@@ -275,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
         except json.JSONDecodeError as error:
             print(f"--write {item}: the sample is not JSON ({error})", file=sys.stderr)
             return 2
-    say = _own_lines()
+    say = own_lines()
     try:
         peer = RtiPeer(args.domain, writers=list(samples), readers=readers,
                        initial_peers=[host for host in args.initial_peers.split(",") if host], lan=args.lan)

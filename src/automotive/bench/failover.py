@@ -306,6 +306,24 @@ class Sequence:
         return list(longest.items())
 
 
+def freeze_primary(run: Sequence, system: System, freeze_s: float) -> None:
+    """The primary frozen, the platform's commands from the standby, until ``freeze_s`` after the freeze."""
+    start = run.phase("primary frozen")
+    freeze(system.primary)
+    platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
+    time.sleep(max(0.0, start + freeze_s - time.time()))
+
+
+def kill_and_restart_primary(run: Sequence, system: System) -> None:
+    """The primary killed, the platform's commands from the standby, the primary restarted and owner again."""
+    start = run.phase("primary killed")
+    kill(system.primary)
+    platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
+    restarted = run.phase("primary restarted")
+    restart(system, PRIMARY_NAME)
+    platform_owned_by(system, PRIMARY_NAME, restarted, "the platform's owner change to the restarted primary")
+
+
 def run_sequence(system: System, sequence: str, number: int, freeze_s: float) -> Sequence:
     """Inject one fault sequence; returns it once the system is whole again."""
     timeout = system.timeout
@@ -313,27 +331,16 @@ def run_sequence(system: System, sequence: str, number: int, freeze_s: float) ->
     time.sleep(system.random.uniform(0, 0.1))  # at a random phase of the 100 ms command period
     run = Sequence([])
     if sequence == "frozen":
-        start = run.phase("primary frozen")
-        freeze(system.primary)
-        platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
-        time.sleep(max(0.0, start + freeze_s - time.time()))
+        freeze_primary(run, system, freeze_s)
         run.phase("primary continued")
         resumed = resume(system.primary)
         run.resumed.append((system.primary, resumed))
         platform_owned_by(system, PRIMARY_NAME, resumed, "the platform's owner change to the continued primary")
         back_at_work(system.primary, resumed, timeout)
     elif sequence == "killed":
-        start = run.phase("primary killed")
-        kill(system.primary)
-        platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
-        restarted = run.phase("primary restarted")
-        restart(system, PRIMARY_NAME)
-        platform_owned_by(system, PRIMARY_NAME, restarted, "the platform's owner change to the restarted primary")
+        kill_and_restart_primary(run, system)
     elif sequence == "double":
-        start = run.phase("primary frozen")
-        freeze(system.primary)
-        platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
-        time.sleep(max(0.0, start + freeze_s - time.time()))
+        freeze_primary(run, system, freeze_s)
         run.phase("primary continued, standby frozen")
         freeze(system.standby)
         resumed = resume(system.primary)
@@ -345,12 +352,7 @@ def run_sequence(system: System, sequence: str, number: int, freeze_s: float) ->
         run.resumed.append((system.standby, standby_back))
         back_at_work(system.standby, standby_back, timeout)
     elif sequence == "back-to-back":
-        start = run.phase("primary killed")
-        kill(system.primary)
-        platform_owned_by(system, STANDBY_NAME, start, "the platform's owner change to the standby")
-        restarted = run.phase("primary restarted")
-        restart(system, PRIMARY_NAME)
-        platform_owned_by(system, PRIMARY_NAME, restarted, "the platform's owner change to the restarted primary")
+        kill_and_restart_primary(run, system)
         if number % 2:
             second = run.phase("standby killed as the primary took over")
             kill(system.standby)

@@ -87,7 +87,7 @@ MISSING = ("the RTI reader needs RTI Connector for Python: pip install rticonnex
            "(the project's test extra: pip install -e .[test])")
 
 
-def _own_lines() -> Callable[[str], None]:
+def own_lines() -> Callable[[str], None]:
     """This program's lines, each in one write; whatever else writes to file descriptor 1 (RTI's log messages, a
     piece at a time) goes to stderr from now on."""
     stdout = os.dup(1)
@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError:
         print(MISSING, file=sys.stderr)
         return 2
-    say = _own_lines()
+    say = own_lines()
     xml = _XML.replace("DOMAIN_ID", str(args.domain)).replace("LEASE_NS", str(LEASE_NS))
     connector = rti.Connector("Participants::Reader", f'str://"{xml}"')
     stopping: list[bool] = []
