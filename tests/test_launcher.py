@@ -114,10 +114,12 @@ def test_whole_system_reaches_steady_state_and_ctrl_c_stops_it(apps, domain_id: 
 
 def test_an_application_that_dies_is_reported_with_its_exit_code(apps, domain_id: int,  # type: ignore[no-untyped-def]
                                                                   tmp_path: Path) -> None:
-    # hmi refuses an unknown property (exit code 2); vision is killed; sensor fusion goes on until stopped.
-    launcher = launch(apps, domain_id, tmp_path, "vision", "sensor_fusion", "hmi", "-D", "hmi:config.noSuchKey=1")
+    # hmi refuses a property value out of range (exit code 2: a key it knows, so the launcher's check of the keys
+    # lets it start); vision is killed; sensor fusion goes on until stopped.
+    launcher = launch(apps, domain_id, tmp_path, "vision", "sensor_fusion", "hmi", "-D", "hmi:config.mallocTrim=-5")
     pids = started_pids(launcher)
-    launcher.wait_for(r"^launch\s+\| hmi ended on its own after [\d.]+ s, exit code 2 \(last error: .*noSuchKey")
+    launcher.wait_for(r"^launch\s+\| hmi ended on its own after [\d.]+ s, exit code 2 \(last error: "
+                      r".*config.mallocTrim = -5")
     launcher.wait_for(app_line("sensor_fusion", STEADY["sensor_fusion"]))
 
     os.kill(pids["vision"], signal.SIGKILL)

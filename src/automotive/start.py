@@ -83,7 +83,32 @@ camera_pub = _script("automotive.apps.camera_pub", "automotive-camera-pub")
 camera_sub = _script("automotive.apps.camera_sub", "automotive-camera-sub")
 
 
-if __name__ == "__main__":  # python -m automotive.start MODULE ARGS...
+def check_settings(programs: list[tuple[str, str, list[str]]]) -> list[tuple[str, int, str]]:
+    """Each program's settings read by its own ``main(args + ["--check-config"])`` (properties and keys, no bus), all
+    in this one process: (name, exit code, its error line) of each. The launcher's check before it starts anything:
+    one process importing the applications once, rather than one per application (a second or more each)."""
+    import contextlib
+    import io
+
+    results = []
+    for name, module, args in programs:
+        errors = io.StringIO()
+        with contextlib.redirect_stderr(errors), contextlib.redirect_stdout(io.StringIO()):
+            try:
+                code = start(module, name, [*args, "--check-config"])
+            except SystemExit as ended:  # argparse's exit for a bad option
+                code = ended.code if isinstance(ended.code, int) else 2
+        lines = errors.getvalue().strip().splitlines()
+        results.append((name, code, lines[-1] if lines else ""))
+    return results
+
+
+if __name__ == "__main__" and sys.argv[1:2] == ["--check-settings"]:  # the launcher's: JSON in and out
+    import json
+
+    checked = check_settings([(name, module, list(args)) for name, module, args in json.load(sys.stdin)])
+    print(json.dumps(checked))
+elif __name__ == "__main__":  # python -m automotive.start MODULE ARGS...
     if len(sys.argv) < 2:
         print("usage: python -m automotive.start MODULE [ARGS...]", file=sys.stderr)
         sys.exit(2)

@@ -249,18 +249,20 @@ def check_settings(specs: list[AppSpec], overrides: Sequence[str]) -> None:
     """Each application given a -D APP:KEY=VALUE of its own reads its settings once, without joining the bus, before
     any is started: a key it does not know stops the launch with its one line, instead of that application ending
     with exit code 2 while the others run on. (A -D KEY=VALUE for all goes to every application, so a key one of
-    them does not know is an error of every launch, seen at once.) The checks run side by side; each imports its
-    application, about a second."""
+    them does not know is an error of every launch, seen at once.) One process checks them all (automotive.start:
+    each application imported once there, about a second)."""
     targets = {item.split(":", 1)[0] for item in overrides if re.match(r"^[\w-]+:", item)}
-    checks = [(spec, subprocess.Popen([*spec.command, "--check-config"], stdout=subprocess.DEVNULL,
-                                      stderr=subprocess.PIPE, text=True))
-              for spec in specs if spec.module in APPS and (spec.module in targets or spec.name in targets)]
-    problems = []
-    for spec, check in checks:
-        _, errors = check.communicate()
-        if check.returncode != 0:
-            line = errors.strip().splitlines()[-1] if errors.strip() else f"exit code {check.returncode}"
-            problems.append(f"{spec.name}: {line}")
+    checked = [spec for spec in specs if spec.module in APPS and (spec.module in targets or spec.name in targets)]
+    if not checked:
+        return
+    request = json.dumps([(spec.name, children.program_module(spec.module), spec.args) for spec in checked])
+    result = subprocess.run([sys.executable, "-m", "automotive.start", "--check-settings"], input=request,
+                            capture_output=True, text=True)
+    try:
+        answers = json.loads(result.stdout)
+    except ValueError:
+        raise LaunchError(f"the check of the applications' settings failed: {result.stderr.strip()[-300:]}") from None
+    problems = [f"{name}: {line or f'exit code {code}'}" for name, code, line in answers if code != 0]
     if problems:
         raise LaunchError("; ".join(problems) + " (nothing was started)")
 
