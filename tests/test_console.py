@@ -4,6 +4,7 @@ quietly."""
 
 from __future__ import annotations
 
+import io
 import os
 import re
 import subprocess
@@ -11,9 +12,12 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from apprunner import AppRunner
 
+from automotive.apps.hmi import AlertView, ConsoleUI, Shown
 from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE
+from automotive.tools.launch import Console
 
 LAUNCH = [sys.executable, "-m", "automotive.tools.launch"]
 FAST_STATUS = ["-D", "config.statusInterval=0.5"]  # the status line every half second instead of every 5 s
@@ -118,3 +122,46 @@ def test_the_launcher_verbose_shows_every_line(apps: AppRunner, domain_id: int, 
     started = time.monotonic()
     launcher.stop()
     assert time.monotonic() - started < 20
+
+
+RECORD = "12:00:01.234 hmi debug: alert sample 7: 1 alert(s)"  # a DEBUG record of another thread of the program
+
+
+class SharedStdout(io.StringIO):
+    """A program's standard output that another thread logs to at the worst moments: one record after every write."""
+
+    def write(self, text: str) -> int:
+        written = super().write(text)
+        super().write(RECORD + "\n")
+        return written
+
+
+@pytest.mark.fast
+@pytest.mark.parametrize("boxed", [False, True])
+def test_the_hmi_writes_its_alert_box_so_that_no_log_record_lands_inside_a_line(
+        boxed: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    """print() writes a line's text and its newline apart: a log record in between was glued to the alert's line
+    (``+== DRIVER ALERT ==+ ...12:00:01.234 hmi debug: ...``), which the launcher's console then showed whole or not
+    as the alert, and a test's pattern ending in ``$`` missed."""
+    stdout = SharedStdout()
+    monkeypatch.setattr(sys, "stdout", stdout)
+    ConsoleUI(boxed=boxed).render(AlertView(Shown.ALERT, ("Driver attention required",)))
+    lines = stdout.getvalue().splitlines()
+    box = [line for line in lines if line != RECORD]
+    assert all(RECORD not in line for line in box), lines
+    assert box and all(line.startswith(("+", "|")) for line in box), lines
+
+
+@pytest.mark.fast
+def test_the_launcher_console_cuts_a_sample_record_glued_to_another_writers_line(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A DEBUG record is left out of the console wherever it starts in a line: after the text of another writer of
+    the application's output that left its line open (a C library, a print() of another thread), not only at the
+    start."""
+    console = Console(["hmi"], show_apps=True, launcher_log=None)
+    console.app_line("hmi", RECORD)
+    console.app_line("hmi", "partial text of another writer" + RECORD)
+    console.app_line("hmi", "12:00:01.300 hmi: status: in AlertTopic 10/s")
+    console.app_line("hmi", "")  # a blank line of the application stays a blank line
+    shown = [line.split(" | ", 1)[1] for line in capsys.readouterr().out.splitlines()]
+    assert shown == ["partial text of another writer", "12:00:01.300 hmi: status: in AlertTopic 10/s", ""]
