@@ -36,6 +36,7 @@ from typing import Any, Protocol
 
 from cyclonedds.core import GuardCondition
 
+from automotive.bus import console
 from automotive.bus.alerts import alert_texts
 from automotive.bus.app import Application, build_parser, run
 from automotive.bus.cli import EXIT_BAD_INPUT
@@ -190,13 +191,12 @@ class ConsoleUI:
     def render(self, view: AlertView) -> None:
         inner = self.WIDTH - 2
         title = "+" + f" {self.TITLES[view.shown]} ".center(inner, "=") + "+"
+        # One write for the whole (console.write_line): another thread's log record cannot land inside a line.
         if not self.boxed:
-            print(f"{title} {' | '.join(box_lines(view))}", flush=True)
+            console.write_line(f"{title} {' | '.join(box_lines(view))}")
             return
-        print(title)
-        for line in box_lines(view):
-            print("| " + line.ljust(inner - 2) + " |")
-        print("+" + "=" * inner + "+", flush=True)
+        lines = [title, *("| " + line.ljust(inner - 2) + " |" for line in box_lines(view)), "+" + "=" * inner + "+"]
+        console.write_line("\n".join(lines))
 
     def pump(self) -> None:
         pass

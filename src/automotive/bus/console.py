@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import sys
 import threading
 from collections.abc import Callable
@@ -31,6 +32,9 @@ LEVEL_TAGS = {logging.DEBUG: " debug", logging.INFO: "", logging.WARNING: " WARN
               logging.CRITICAL: " CRITICAL"}
 # How a reader of the output recognises a DEBUG line: ``12:00:01.234 vision debug: ...``.
 DEBUG_LINE_PATTERN = r"^\d\d:\d\d:\d\d\.\d{3} \S+ debug: "
+# A DEBUG record wherever it starts in a line: glued to the text of another writer of the same output that left its
+# line open (print() writes its text and its newline apart; a C library writes in pieces), the record comes after it.
+DEBUG_RECORD = re.compile(DEBUG_LINE_PATTERN.removeprefix("^"))
 
 
 class LevelFormatter(logging.Formatter):
@@ -95,6 +99,22 @@ def setup_logging(name: str, verbose: bool = False, on_closed: Callable[[], None
     log.setLevel(level_from(verbose))
     log.propagate = False
     return log
+
+
+def without_debug_record(text: str) -> str:
+    """A line of a program's output without the DEBUG record it carries (from the record's start on): "" for a DEBUG
+    line, the other writer's text for a record glued to it, the line itself for any other."""
+    record = DEBUG_RECORD.search(text)
+    return text if record is None else text[:record.start()]
+
+
+def write_line(text: str) -> None:
+    """``text`` and its newline on stdout in one write, flushed: print() writes them apart, and a log record of another
+    thread (the status line, a listener's match) landing between them would be glued to the text, one line of two
+    that a reader of the output (the launcher's console filter, a test's pattern) no longer tells apart. A log record
+    is one write already (logging.StreamHandler)."""
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
 
 
 def closed_pipe_handler(log: logging.Logger) -> ClosedPipeHandler | None:

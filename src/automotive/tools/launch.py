@@ -73,7 +73,7 @@ from automotive.bus.cli import (
     stop_dumping_stacks,
     user_help,
 )
-from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE
+from automotive.bus.console import LOG_LEVEL_VARIABLE, without_debug_record
 from automotive.bus.ports import check_domain_id
 from automotive.tools import children
 from automotive.tools.children import Child, Line
@@ -103,9 +103,9 @@ STOP_MARGIN_S = STACK_DUMP_WAIT_S + 5 + 2 * 2 + 5
 DEFAULT_STOP_TIMEOUT = 10.0
 PID_FILE = "launch.pid"
 # The applications' DEBUG lines (every sample: automotive.bus.console), which the console and the windows leave out
-# unless -v; the log files keep them.
-DEBUG_LINE = re.compile(DEBUG_LINE_PATTERN)
-DEBUG_LINE_GREP = "^[0-9:.]+ [^ ]+ debug: "  # the same, for grep -E in a window's shell
+# unless -v; the log files keep them. The console cuts a DEBUG record wherever it starts in a line (after another
+# writer's open line: console.without_debug_record); a window's grep -E drops the lines that start with one.
+DEBUG_LINE_GREP = "^[0-9:.]+ [^ ]+ debug: "
 # Lines that must stand out: an alert raised or cleared, a lost alert source.
 # Not the HMI's "no alert source" or "no alert state yet": the start of a system is no alert.
 ALERT_LINE = re.compile(r"DRIVER ALERT|ALERT:|all clear|All clear|alert source (lost|LOST)")
@@ -311,8 +311,13 @@ class Console:
             pass  # nobody reads our output any more: the log files still have it
 
     def app_line(self, name: str, text: str) -> None:
-        if not self.show_apps or (not self.verbose and DEBUG_LINE.match(text)):
+        if not self.show_apps:
             return
+        if not self.verbose:
+            shown = without_debug_record(text)
+            if shown != text and not shown.strip():
+                return  # a DEBUG line
+            text = shown
         if ALERT_LINE.search(text):  # an alert must not scroll by unseen among the status lines
             text = f"\033[1;7m{text}\033[0m" if self.colour else f">>> {text}"
         with self.lock:
