@@ -302,6 +302,61 @@ def test_flows_from_reports_rates_events_age_and_stale_programs() -> None:
 
 
 @pytest.mark.fast
+def test_a_mismatch_the_rules_can_explain_has_a_hint_saying_which_side_can_give_way() -> None:
+    participants = [ParticipantRecord("p1", "writer", 0x0110, "car", "11"),
+                    ParticipantRecord("p2", "reader", 0x0110, "car", "12")]
+    cases = {  # the failing policy: (the writer's QoS, the reader's, words the hint has)
+        "reliability": ({"reliability": "BEST_EFFORT"}, {"reliability": "RELIABLE"}, "make the writer RELIABLE"),
+        "durability": ({}, {"durability": "TRANSIENT_LOCAL"}, "give the writer durability TRANSIENT_LOCAL"),
+        "ownership": ({"ownership": "SHARED"}, {"ownership": "EXCLUSIVE"}, "config.redundant=true"),
+        "latency budget": ({"latency_budget_ns": 50_000_000}, {}, "a latency budget of at least 50 ms"),
+        "deadline": ({"deadline_ns": 2_000_000_000}, {"deadline_ns": 1_000_000_000}, "shorten the writer's deadline"),
+        "partition": ({"partitions": ("a",)}, {"partitions": ("b",)}, "in one partition"),
+    }
+    for policy, (offered, requested, said) in cases.items():
+        snapshot = analyse(1, participants, [record("w", "p1", "writer", "T", type_name="X", **offered),
+                                             record("r", "p2", "reader", "T", type_name="X", **requested)])
+        (mismatch,) = snapshot.mismatches
+        assert [reason.policy for reason in mismatch.reasons] == [policy]
+        assert any(said in hint for hint in mismatch.hints), (policy, mismatch.hints)
+        assert json.loads(snapshot.to_json())["mismatches"][0]["hints"] == mismatch.hints
+
+
+@pytest.mark.fast
+def test_participants_of_one_name_are_told_apart_by_pid_or_host_in_their_labels() -> None:
+    participants = [ParticipantRecord("k1-00000001", "hmi", 0x0110, "car", "41"),
+                    ParticipantRecord("k2-00000002", "hmi", 0x0110, "car", "42"),
+                    ParticipantRecord("k3-00000003", "fusion", 0x0110, "car", "43"),
+                    ParticipantRecord("k4-00000004", "lidar", 0x0110, "car", "44"),
+                    ParticipantRecord("k5-00000005", "lidar", 0x0110, "truck", "44"),
+                    ParticipantRecord("k6-00000006", "crowd", 0x0110, "car", "45"),
+                    ParticipantRecord("k7-00000007", "crowd", 0x0110, "car", "45")]
+    labels = {p.key: p.label for p in analyse(1, participants, []).participants}
+    assert labels == {"k1-00000001": "hmi (pid 41)", "k2-00000002": "hmi (pid 42)", "k3-00000003": "fusion",
+                      "k4-00000004": "lidar (pid 44 on car)", "k5-00000005": "lidar (pid 44 on truck)",
+                      "k6-00000006": "crowd (00000006 on car)", "k7-00000007": "crowd (00000007 on car)"}
+
+
+@pytest.mark.fast
+def test_a_flow_is_periodic_only_when_a_writer_or_reader_names_a_deadline() -> None:
+    participants = [ParticipantRecord("p1", "vision", 0x0110, "car", "11"),
+                    ParticipantRecord("p2", "collision_avoidance", 0x0110, "car", "12"),
+                    ParticipantRecord("p3", "monitor", 0x0110, "car", "13", own=True)]
+    endpoints = [record("w1", "p1", "writer", "VisionTopic", type_name="V", deadline_ns=10**10),
+                 record("r1", "p2", "reader", "VisionTopic", type_name="V", deadline_ns=11 * 10**9),
+                 record("w2", "p2", "writer", "AlertTopic", type_name="A"),  # written on change: no deadline
+                 record("r2", "p1", "reader", "Circle", type_name="S"),
+                 record("r3", "p3", "reader", "Circle", type_name="S", deadline_ns=10**9)]  # the monitor's: no say
+    reports = [ProgramReport("vision", "car", 0, "ok", (("VisionTopic out/s", "0"), ("Circle in/s", "0")), 0.5),
+               ProgramReport("collision_avoidance", "car", 0, "ok", (("AlertTopic out/s", "0"),), 0.5)]
+    snapshot = analyse(1, participants, endpoints, reports)
+    assert {flow.topic: (flow.rate, flow.periodic) for flow in snapshot.flows} == {
+        "VisionTopic": (0.0, True), "AlertTopic": (0.0, False), "Circle": (0.0, False)}
+    assert {flow["topic"]: flow["periodic"] for flow in snapshot.to_dict()["flows"]} == {
+        "VisionTopic": True, "AlertTopic": False, "Circle": False}
+
+
+@pytest.mark.fast
 def test_measured_flows_add_bytes_rate_and_the_newest_age_and_a_never_seen_probe_adds_no_flow() -> None:
     vision = ProgramReport("vision", "car", 0, "ok", (("VisionTopic out/s", "10"),), 0.5)
     measured = {"VisionTopic": MeasuredFlow(9.8, 2048.0, 0.1), "rt/LidarTopic": MeasuredFlow(20.0, 3.6e6, 0.05),

@@ -68,6 +68,7 @@ TALL_ROWS = range(20, 45)  # the tall truck leads for 2.5 s of it: the alert, th
 REASON = "reliability: offered BEST_EFFORT, requested RELIABLE (a RELIABLE reader matches only RELIABLE writers)"
 CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                   "--disable-component-update", "--disable-sync", "--no-first-run", "--window-size=1600,1300")
+RED = "rgb(198, 40, 40)"  # the page's --error: a flow that should move and does not
 T = TypeVar("T")
 
 # 100 lightweight participants in one process (they share its domain and participant index), each named.
@@ -80,6 +81,60 @@ crowd = [DomainParticipant(domain, qos=Qos(Policy.EntityName(f"crowd-{i:03d}")))
 print(f"crowd of {len(crowd)} participants", flush=True)
 sys.stdin.read()
 '''
+
+# One participant named "twin" that writes and reads TwinTopic: two of these processes are two participants of one
+# name (as two HMIs are), each matching the other.
+TWIN_SCRIPT = r'''
+import os, sys
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from automotive.types.automotive import ShapeType
+participant = DomainParticipant(int(sys.argv[1]), qos=Qos(Policy.EntityName("twin")))
+topic = Topic(participant, "TwinTopic", ShapeType)
+writer, reader = DataWriter(participant, topic), DataReader(participant, topic)
+print(f"twin {os.getpid()}", flush=True)
+sys.stdin.read()
+'''
+
+# Where the graph's edge labels lie over a node, another edge's label or another edge (cytoscape's model coordinates:
+# each label's box as drawn, each edge as points along its line or quadratic bezier curve).
+LABELS_CLEAR_JS = """
+const cy = state.cy;
+const overlap = (a, b) => a.x1 < b.x2 && b.x1 < a.x2 && a.y1 < b.y2 && b.y1 < a.y2;
+const inside = (p, b) => p.x > b.x1 && p.x < b.x2 && p.y > b.y1 && p.y < b.y2;
+const labelBox = (e) => e.boundingBox({includeNodes: false, includeEdges: false, includeLabels: true,
+  includeOverlays: false});
+const path = (e) => {
+  const s = e.sourceEndpoint(), t = e.targetEndpoint(), c = e.controlPoints() || [];
+  const points = [];
+  for (let i = 0; i <= 50; i += 1) {
+    const u = i / 50;
+    points.push(c.length === 1
+      ? {x: (1 - u) ** 2 * s.x + 2 * (1 - u) * u * c[0].x + u * u * t.x,
+         y: (1 - u) ** 2 * s.y + 2 * (1 - u) * u * c[0].y + u * u * t.y}
+      : {x: s.x + (t.x - s.x) * u, y: s.y + (t.y - s.y) * u});
+  }
+  return points;
+};
+const problems = [];
+const labelled = cy.edges().filter((e) => e.data("label"));
+const name = (e) => `${e.data("label")} ${e.source().data("label")} -> ${e.target().data("label")}`
+  .replace(/\\n/g, " ");
+labelled.forEach((e) => {
+  const box = labelBox(e);
+  cy.nodes().forEach((n) => { if (overlap(box, n.boundingBox())) problems.push(`${name(e)} over a node`); });
+  labelled.forEach((f) => {
+    if (f.id() > e.id() && overlap(box, labelBox(f))) problems.push(`${name(e)} over ${name(f)}`);
+  });
+  cy.edges().forEach((f) => {
+    if (f.id() !== e.id() && path(f).some((p) => inside(p, box))) problems.push(`${name(e)} over edge ${name(f)}`);
+  });
+});
+return {labels: labelled.length, problems};
+"""
 
 
 # -- the browser ------------------------------------------------------------------------------------------------------
@@ -268,6 +323,78 @@ def test_the_launched_system_shows_its_six_flows_moving_its_health_and_the_vehic
     screenshot(browser, shot)
 
 
+def test_at_1280_by_800_tables_fit_their_boxes_graph_labels_lie_clear_and_quiet_topics_are_not_red(
+        system: System, browser: WebDriver, tmp_path: Path) -> None:
+    snapshot_until(system.url, this_system, "the system's programs and flows")
+    shot = tmp_path / "1280.png"
+    browser.set_window_size(1280, 800)
+    browser.get(system.url)
+    until(browser, lambda page: (lambda s: s["status"] == "live" and s["nodes"] >= len(PROGRAMS) and s["edges"] >= 6
+                                 and set(PROGRAMS) <= set(s["programs"]))(page_state(page)), TIMEOUT,
+          "the system's graph and health", shot)
+    # Every table inside its box: the box does not scroll sideways and the table is no wider than it.
+    widths = browser.execute_script("""
+        return [...document.querySelectorAll('table')].map((table) => {
+          const box = table.closest('section');
+          return [table.id, table.getBoundingClientRect().width, box.clientWidth, box.scrollWidth]; });""")
+    too_wide = [row for row in widths if row[1] > row[2] or row[3] > row[2]]
+    assert not too_wide, widths
+    endpoints = browser.execute_script("return document.querySelectorAll('#endpoints tbody tr[data-topic]').length")
+    assert endpoints >= 12, endpoints
+    # The edges' labels cover no node, no other label and no other edge.
+    labels = browser.execute_script(LABELS_CLEAR_JS)
+    assert labels["labels"] >= 6 and labels["problems"] == [], labels
+    # AlertTopic is written on a change (no deadline): at 0/s it is quiet, not red; the periodic flows move.
+    def alert_topic_still(page: WebDriver) -> Any:
+        return page.execute_script("""
+            const row = document.querySelector('#flows tbody tr[data-topic="AlertTopic"]');
+            return row && Number(row.dataset.rate) === 0 ? {className: row.className,
+              colour: getComputedStyle(row.querySelector('td.rate')).color} : null;""")
+
+    still = until(browser, alert_topic_still, TIMEOUT, "AlertTopic at 0 samples/s", shot)
+    assert still["className"] == "quiet" and still["colour"] != RED, still
+    classes = browser.execute_script("return Object.fromEntries([...document.querySelectorAll('#flows tbody tr"
+                                     "[data-topic]')].map((row) => [row.dataset.topic, row.className]))")
+    assert all(classes[topic] in ("moving", "still") for topic in SIX_FLOWS[:-1]), classes
+    browser.save_screenshot(str(shot))
+
+
+def test_two_participants_of_one_name_are_told_apart_by_their_pids_in_the_graph_and_the_lists(
+        system: System, browser: WebDriver, tmp_path: Path) -> None:
+    runner = AppRunner(tmp_path)
+    shot = tmp_path / "twins.png"
+    try:
+        pids = []
+        for _ in range(2):
+            twin = runner.start_command("twin", [sys.executable, "-c", TWIN_SCRIPT, str(system.domain)], stdin=True)
+            line = twin.wait_for(r"^twin \d+$", timeout=TIMEOUT)
+            pids.append(line.split()[1])
+        labels = {f"twin (pid {pid})" for pid in pids}
+        browser.get(system.url)
+
+        def twins_shown(page: WebDriver) -> Any:
+            shown = page.execute_script("""
+                return {participants: [...document.querySelectorAll('#participants tbody tr[data-name="twin"]')]
+                          .map((row) => row.cells[0].textContent),
+                        nodes: state.cy ? state.cy.nodes().map((node) => node.data('label').split('\\n')[0])
+                          .filter((label) => label.startsWith('twin')) : [],
+                        matches: [...document.querySelectorAll('#matches tbody tr[data-topic="TwinTopic"]')]
+                          .map((row) => [...row.cells].slice(1, 3).map((cell) => cell.textContent)),
+                        endpoints: [...document.querySelectorAll('#endpoints tbody tr[data-topic="TwinTopic"]')]
+                          .map((row) => row.cells[2].textContent)};""")
+            return shown if len(shown["participants"]) == 2 and len(shown["matches"]) >= 2 else None
+
+        shown = until(browser, twins_shown, TIMEOUT, "the two participants named twin", shot)
+        assert set(shown["participants"]) == labels, (shown, labels)
+        assert set(shown["nodes"]) == labels, (shown, labels)
+        one, other = sorted(labels)  # each writes to the other (and to itself)
+        assert {(one, other), (other, one)} <= {tuple(pair) for pair in shown["matches"]}, shown
+        assert set(shown["endpoints"]) == labels, shown
+        screenshot(browser, shot)
+    finally:
+        runner.stop_all()
+
+
 def latency_state(browser: WebDriver) -> dict[str, Any]:
     """The latency panel: per topic and per pair the cells' texts, and the alert chain's box."""
     state: dict[str, Any] = browser.execute_script("""
@@ -340,6 +467,11 @@ def test_an_rti_reader_requesting_reliable_from_best_effort_vision_shows_its_rea
         notices = browser.execute_script(
             "return [...document.querySelectorAll('#notices li')].map((li) => [li.dataset.kind, li.textContent])")
         assert any(kind == "reader matched no writer" and "VisionTopic" in text for kind, text in notices), notices
+        # The Hints box explains the mismatch (what to change), rather than saying "none" beside it.
+        hints = browser.execute_script("return [...document.querySelectorAll('#hints li')].map((li) => "
+                                       "[li.dataset.kind, li.dataset.topic, li.textContent])")
+        assert any(kind == "mismatch" and topic == "VisionTopic" and "make the writer RELIABLE" in text
+                   for kind, topic, text in hints), hints
         participants = browser.execute_script(
             "return [...document.querySelectorAll('#participants tbody tr[data-vendor]')].map((r) => r.dataset.vendor)")
         assert "RTI Connext DDS" in participants

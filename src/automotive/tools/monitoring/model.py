@@ -25,7 +25,14 @@ from automotive.bus.diagnostics import (
     LATENCY_P99,
     LATENCY_SAMPLES,
 )
-from automotive.tools.monitoring.rules import EndpointQos, Reason, hints, mismatch_reasons, participant_hint
+from automotive.tools.monitoring.rules import (
+    INFINITE_NS,
+    EndpointQos,
+    Reason,
+    hints,
+    mismatch_reasons,
+    participant_hint,
+)
 
 UNKNOWN = "unknown"
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
@@ -104,6 +111,9 @@ class Participant:
     writers: list[str] = field(default_factory=list)
     readers: list[str] = field(default_factory=list)
     hints: list[str] = field(default_factory=list)
+    # The name, and where another participant has the same name, what tells them apart: "hmi (pid 4242)", or the
+    # host when the pids do not ("hmi (pid 4242 on car)"). Set by analyse().
+    label: str = ""
 
 
 @dataclass
@@ -187,6 +197,9 @@ class Flow:
     monitor_rate: float | None = None  # samples/s the monitor's own reader takes; None: not read by it
     # reader program -> its latency of the topic over the last 10 s (Latency's fields but topic, writer and reader)
     latency: dict[str, dict[str, Any]] = field(default_factory=dict)
+    # Expected to move all the time: a writer offers (or a reader requests) a finite deadline. A topic written on
+    # change (the driver alerts, Shapes Demo's Circle) has none, and is quiet by design at 0 samples/s.
+    periodic: bool = False
 
 
 # Whether the two ends of a latency share a clock: on one host they do; across hosts each writer stamps with its own
@@ -419,6 +432,7 @@ def analyse(domain: int, participant_records: Iterable[ParticipantRecord], endpo
             notices.append(Notice("topic without reader", topic.name, None,
                                   f"{topic.name} is written ({', '.join(names)}) and read by nobody"))
 
+    label_participants(participants.values())
     hosts: dict[str, int] = {}
     for participant in participants.values():
         hosts[participant.host] = hosts.get(participant.host, 0) + 1
@@ -440,7 +454,10 @@ def analyse(domain: int, participant_records: Iterable[ParticipantRecord], endpo
             hosts_of.setdefault(participant.name, set()).add(participant.host)
     measured_latencies = latencies(report_list, hosts_of)
     found_flows = flows(report_list, moved_ago or {}, measured or {})
+    periodic = {endpoint.topic for endpoint in endpoints
+                if endpoint.qos.deadline_ns < INFINITE_NS and not participants[endpoint.participant].own}
     for item in found_flows:
+        item.periodic = item.topic in periodic
         item.latency = {latency.reader: {"p50_ms": latency.p50_ms, "p99_ms": latency.p99_ms,
                                          "samples": latency.samples, "clock": latency.clock}
                         for latency in measured_latencies if latency.topic == item.topic and latency.writer is None}
@@ -450,6 +467,26 @@ def analyse(domain: int, participant_records: Iterable[ParticipantRecord], endpo
                     found_flows, sorted(programs, key=lambda p: p.name), vehicle or Vehicle(),
                     [latency for latency in measured_latencies if latency.writer is not None],
                     chain(measured_latencies))
+
+
+def label_participants(participants: Iterable[Participant]) -> None:
+    """Each participant's label: its name, and beside a name that repeats, the pid (and the host when pids alone do
+    not tell them apart; the key's end when nothing else does)."""
+    by_name: dict[str, list[Participant]] = {}
+    for participant in participants:
+        by_name.setdefault(participant.name, []).append(participant)
+    for same in by_name.values():
+        if len(same) == 1:
+            same[0].label = same[0].name
+            continue
+        pids_differ = len({(p.pid, p.host) for p in same}) == len(same) and UNKNOWN not in {p.pid for p in same}
+        hosts_matter = len({p.host for p in same}) > 1
+        for participant in same:
+            if pids_differ:
+                where = f"pid {participant.pid}" + (f" on {participant.host}" if hosts_matter else "")
+            else:  # one process of several participants, or pids not told
+                where = f"{participant.key[-8:]}" + (f" on {participant.host}" if participant.host != UNKNOWN else "")
+            participant.label = f"{participant.name} ({where})"
 
 
 def clock_of(writer: str | None, reader_host: str, hosts_of: dict[str, set[str]]) -> tuple[str, str | None]:

@@ -269,11 +269,44 @@ def mismatch_reasons(offered: EndpointQos, requested: EndpointQos) -> list[Reaso
     return [reason for rule in RULES if (reason := rule.check(offered, requested)) is not None]
 
 
+# What to change, per policy that fails: the reason says which rule; this says which side can give way. The latency
+# budget and the data representation have their own, vendor-aware hints below.
+REMEDIES: dict[str, Callable[[EndpointQos, EndpointQos], str]] = {
+    "reliability": lambda offered, requested: (
+        "the writer sends best effort: make the writer RELIABLE, or let the reader request BEST_EFFORT (it then "
+        "takes what arrives, with no resend)"),
+    "durability": lambda offered, requested: (
+        f"the reader asks for {requested.durability} data the writer does not keep: give the writer durability "
+        f"{requested.durability}, or let the reader request {offered.durability} (a late joiner then misses what "
+        "was written before it)"),
+    "ownership": lambda offered, requested: (
+        "an EXCLUSIVE reader matches only EXCLUSIVE writers and a SHARED one only SHARED writers: redundant mode's "
+        "profiles are EXCLUSIVE (config.redundant=true on both sides), the defaults SHARED"
+        if offered.ownership in OWNERSHIP and requested.ownership in OWNERSHIP else
+        "both sides must name the same ownership kind"),
+    "deadline": lambda offered, requested: (
+        f"the writer promises a sample every {duration_words(offered.deadline_ns)}, the reader wants one every "
+        f"{duration_words(requested.deadline_ns)}: shorten the writer's deadline or lengthen the reader's"),
+    "liveliness kind": lambda offered, requested: (
+        f"give the writer liveliness {requested.liveliness}, or let the reader request {offered.liveliness}"),
+    "liveliness lease": lambda offered, requested: (
+        f"the writer's lease ({duration_words(offered.lease_ns)}) is longer than the reader allows "
+        f"({duration_words(requested.lease_ns)}): shorten the writer's lease or lengthen the reader's"),
+    "partition": lambda offered, requested: (
+        "put the writer's publisher and the reader's subscriber in one partition (the same name, or a wildcard on "
+        "one side)"),
+    "type": lambda offered, requested: (
+        "both sides must use the same type name, modules included: build both from one IDL"),
+}
+
+
 def hints(offered: EndpointQos, requested: EndpointQos, writer_vendor: str, reader_vendor: str,
           reasons: list[Reason]) -> list[str]:
-    """What this project learned about other vendors, for one writer/reader pair (matched or not)."""
+    """What to change for one writer/reader pair that does not match (REMEDIES, per failing policy), and what this
+    project learned about other vendors, for a pair matched or not."""
     said: list[str] = []
     policies = {reason.policy for reason in reasons}
+    said.extend(REMEDIES[policy](offered, requested) for policy in sorted(policies) if policy in REMEDIES)
     if "latency budget" in policies:
         said.append("an asynchronous writer hides its data from every default reader: give the reader a latency "
                     f"budget of at least {duration_words(offered.latency_budget_ns)}, or the writer a budget of 0")

@@ -187,13 +187,15 @@ function renderFlows(flows) {
   fill("flows", (flows || []).map((f) => {
     const rate = f.rate;
     const moving = typeof rate === "number" && rate > 0;
+    // Red only where data is expected all the time (a deadline): a topic written on change is quiet by design.
+    const look = moving ? "moving" : f.periodic ? "still" : "quiet";
     const rateCell = numberCell(rate, 1);
     rateCell.classList.add("rate");
     const tr = row([cell(name(f.topic)), rateCell, cell(bytes(f.bytes_per_s), "number bytes"),
       cell(seconds(f.last_sample_age_s), "age"), cell(rates(f.writers)), cell(rates(f.readers)),
       numberCell(f.deadline_missed, 0), numberCell(f.liveliness_changes, 0), numberCell(f.samples_lost, 0),
       numberCell(f.incompatible_qos, 0)], {"data-topic": cut(f.topic, TITLE_CUT), "data-rate": rate,
-      className: moving ? "moving" : "still"});
+      className: look});
     return tr;
   }), "no flow reported yet", 10);
 }
@@ -256,6 +258,18 @@ function endpointOwners(snapshot) {
   return owner;
 }
 
+// Participant key -> its label: the name, with the pid or host where another participant has the same name.
+function labelsOf(snapshot) {
+  const label = new Map();
+  for (const p of snapshot.participants || []) label.set(p.key, p.label || p.name);
+  return label;
+}
+
+// An endpoint's participant's label (the name the snapshot gives with the pair when it is not known).
+function ownerLabel(owners, labels, endpoint, fallback) {
+  return labels.get(owners.get(endpoint)) || fallback;
+}
+
 function vendorOf(snapshot) {
   const vendor = new Map();
   for (const p of snapshot.participants || []) vendor.set(p.key, p.vendor);
@@ -264,14 +278,17 @@ function vendorOf(snapshot) {
 
 function renderAnalysis(snapshot) {
   const owner = endpointOwners(snapshot);
+  const labels = labelsOf(snapshot);
   const vendor = vendorOf(snapshot);
+  const writerOf = (m) => ownerLabel(owner, labels, m.writer, m.writer_participant);
+  const readerOf = (m) => ownerLabel(owner, labels, m.reader, m.reader_participant);
   const box = document.getElementById("mismatches");
   const items = (snapshot.mismatches || []).map((m) => {
     const div = el("div", null, {className: "mismatch", "data-topic": cut(m.topic, TITLE_CUT),
       "data-reader": cut(m.reader_participant, TITLE_CUT), "data-writer": cut(m.writer_participant, TITLE_CUT)});
     const pair = el("div", null, {className: "pair"});
-    pair.append(name(m.topic), ": writer ", name(m.writer_participant),
-      ` (${shortVendor(vendor.get(owner.get(m.writer)))}) \u2192 reader `, name(m.reader_participant),
+    pair.append(name(m.topic), ": writer ", name(writerOf(m)),
+      ` (${shortVendor(vendor.get(owner.get(m.writer)))}) \u2192 reader `, name(readerOf(m)),
       ` (${shortVendor(vendor.get(owner.get(m.reader)))}) do not match`);
     div.appendChild(pair);
     const list = el("ul");
@@ -298,12 +315,19 @@ function renderAnalysis(snapshot) {
 
   const hints = [];
   for (const p of snapshot.participants || []) {
-    for (const hint of p.hints || []) hints.push(el("li", `${cut(p.name, NAME_CUT)}: ${hint}`, {className: "hint"}));
+    for (const hint of p.hints || []) {
+      hints.push(el("li", `${cut(p.label || p.name, NAME_CUT)}: ${hint}`, {className: "hint"}));
+    }
   }
-  for (const m of snapshot.matches || []) {
-    for (const hint of m.hints || []) {
-      hints.push(el("li", `${cut(m.topic, NAME_CUT)} ${cut(m.writer_participant, NAME_CUT)} \u2192 ` +
-        `${cut(m.reader_participant, NAME_CUT)}: ${hint}`, {className: "hint"}));
+  // The mismatches' hints too (what to change), beside those of matched pairs: the box never says "none" beside a
+  // mismatch it can explain.
+  for (const [list, kind] of [[snapshot.mismatches, "mismatch"], [snapshot.matches, "match"]]) {
+    for (const m of list || []) {
+      for (const hint of m.hints || []) {
+        hints.push(el("li", `${cut(m.topic, NAME_CUT)} ${cut(writerOf(m), NAME_CUT)} \u2192 ` +
+          `${cut(readerOf(m), NAME_CUT)}: ${hint}`, {className: "hint", "data-kind": kind,
+          "data-topic": cut(m.topic, TITLE_CUT)}));
+      }
     }
   }
   const hintList = document.getElementById("hints");
@@ -312,14 +336,19 @@ function renderAnalysis(snapshot) {
 }
 
 function renderMatches(snapshot) {
-  fill("matches", (snapshot.matches || []).map((m) => row([cell(name(m.topic)), cell(name(m.writer_participant)),
-    cell(name(m.reader_participant)), cell((m.hints || []).join("; "))], {"data-topic": cut(m.topic, TITLE_CUT)})),
+  const owner = endpointOwners(snapshot);
+  const labels = labelsOf(snapshot);
+  fill("matches", (snapshot.matches || []).map((m) => row([cell(name(m.topic)),
+    cell(name(ownerLabel(owner, labels, m.writer, m.writer_participant))),
+    cell(name(ownerLabel(owner, labels, m.reader, m.reader_participant))), cell((m.hints || []).join("; "))],
+  {"data-topic": cut(m.topic, TITLE_CUT)})),
   "no matched pair", 4);
 }
 
 function renderParticipants(snapshot) {
   fill("participants", (snapshot.participants || []).map((p) => row([
-    cell(name(p.name + (p.own ? " (this monitor)" : ""))), cell(`${p.vendor} (${p.vendor_id})`), cell(name(p.host)),
+    cell(name((p.label || p.name) + (p.own ? " (this monitor)" : ""))), cell(`${p.vendor} (${p.vendor_id})`),
+    cell(name(p.host)),
     cell(p.pid), cell(name(p.process)), cell(p.health ? levelBadge(p.health) : DASH),
     cell((p.writers || []).length, "number"), cell((p.readers || []).length, "number")],
   {"data-name": cut(p.name, TITLE_CUT), "data-vendor": p.vendor})), "no participant seen yet", 8);
@@ -332,9 +361,11 @@ function renderTopics(snapshot) {
 }
 
 function renderEndpoints(snapshot) {
+  const labels = labelsOf(snapshot);
   fill("endpoints", (snapshot.endpoints || []).map((e) => {
     const q = e.qos || {};
-    return row([cell(name(e.topic)), cell(e.kind), cell(name(e.participant_name)), cell(name(e.type_name)),
+    return row([cell(name(e.topic)), cell(e.kind), cell(name(labels.get(e.participant) || e.participant_name)),
+      cell(name(e.type_name)),
       cell(q.reliability), cell(q.durability), cell(q.deadline), cell(q.latency_budget),
       cell(q.liveliness === undefined ? DASH : `${q.liveliness}, lease ${q.lease_duration}`),
       cell(q.ownership === "EXCLUSIVE" ? `EXCLUSIVE (strength ${q.ownership_strength})` : q.ownership),
@@ -349,7 +380,7 @@ function graphElements(snapshot) {
   const owner = endpointOwners(snapshot);
   const nodes = (snapshot.participants || []).map((p) => {
     const vendor = shortVendor(p.vendor);
-    return {group: "nodes", data: {id: `p:${p.key}`, label: `${cut(p.name, 28)}\n${cut(vendor, 20)}`,
+    return {group: "nodes", data: {id: `p:${p.key}`, label: `${cut(p.label || p.name, 28)}\n${cut(vendor, 20)}`,
       colour: HEALTH_COLOURS[p.health] || VENDOR_COLOURS[vendor] || "#546e7a", own: p.own ? "yes" : "no"}};
   });
   // This monitor's own readers match every flow: their edges would hide the system's (the tables list them).
@@ -383,12 +414,70 @@ function makeGraph() {
         "text-halign": "center", "shape": "round-rectangle", "width": 150, "height": 40,
         "background-color": "data(colour)", "color": "#fff", "font-size": 13, "border-width": 0}},
       {selector: "node[own = 'yes']", style: {"border-width": 3, "border-style": "dashed", "border-color": "#1f2a37"}},
-      {selector: "edge", style: {"curve-style": "bezier", "target-arrow-shape": "triangle", "width": 2,
-        "label": "data(label)", "font-size": 11, "text-background-color": "#fff", "text-background-opacity": 0.8,
-        "text-rotation": "autorotate", "line-color": "#2e7d32", "target-arrow-color": "#2e7d32"}},
+      // Edge labels level, on an opaque box, moved off other edges and nodes by placeLabels.
+      {selector: "edge", style: {"curve-style": "bezier", "control-point-step-size": 60,
+        "target-arrow-shape": "triangle", "width": 2, "label": "data(label)", "font-size": 11,
+        "text-background-color": "#fff", "text-background-opacity": 1, "text-background-padding": 2,
+        "text-background-shape": "roundrectangle", "text-rotation": "none", "line-color": "#2e7d32",
+        "target-arrow-color": "#2e7d32", "z-compound-depth": "top"}},
       {selector: "edge[kind = 'mismatch']", style: {"line-color": "#c62828", "target-arrow-color": "#c62828",
         "line-style": "dashed", "color": "#c62828"}},
     ],
+  });
+}
+
+// Geometry of the drawn graph (model coordinates), for placeLabels.
+function overlaps(a, b) { return a.x1 < b.x2 && b.x1 < a.x2 && a.y1 < b.y2 && b.y1 < a.y2; }
+
+function edgePath(edge) { // points along the drawn edge: a line, or the quadratic curve of a bezier edge
+  const s = edge.sourceEndpoint(), t = edge.targetEndpoint(), c = edge.controlPoints() || [];
+  const points = [];
+  for (let i = 0; i <= 40; i += 1) {
+    const u = i / 40;
+    points.push(c.length === 1
+      ? {x: (1 - u) ** 2 * s.x + 2 * (1 - u) * u * c[0].x + u * u * t.x,
+        y: (1 - u) ** 2 * s.y + 2 * (1 - u) * u * c[0].y + u * u * t.y}
+      : {x: s.x + (t.x - s.x) * u, y: s.y + (t.y - s.y) * u});
+  }
+  return points;
+}
+
+function labelBox(edge) {
+  return edge.boundingBox({includeNodes: false, includeEdges: false, includeLabels: true, includeOverlays: false});
+}
+
+// Each edge's label where it covers no node, no label placed before it and no other edge: in the middle of its
+// edge, else beside or above/below it (the first free place; else the least covered). Once per layout, not per
+// snapshot: a few hundred box tests for a system's graph.
+function placeLabels(cy) {
+  const edges = cy.edges().filter((edge) => edge.data("label"));
+  edges.style({"text-margin-x": 0, "text-margin-y": 0});
+  const nodeBoxes = cy.nodes().map((node) => node.boundingBox());
+  const paths = new Map(cy.edges().map((edge) => [edge.id(), edgePath(edge)]));
+  const placed = [];
+  edges.forEach((edge) => {
+    const at = labelBox(edge);
+    const w = at.w / 2 + 6, h = at.h / 2 + 6;
+    let best = null;
+    const places = [[0, 0]];
+    for (const k of [1, 2]) {
+      places.push([k * w, 0], [-k * w, 0], [0, -k * h], [0, k * h], [k * w, -k * h], [-k * w, -k * h], [k * w, k * h],
+        [-k * w, k * h]);
+    }
+    for (const [dx, dy] of places) {
+      const box = {x1: at.x1 + dx, x2: at.x2 + dx, y1: at.y1 + dy, y2: at.y2 + dy};
+      let covered = nodeBoxes.filter((other) => overlaps(box, other)).length
+        + placed.filter((other) => overlaps(box, other)).length;
+      for (const [id, points] of paths) {
+        if (id !== edge.id() && points.some((p) => p.x > box.x1 && p.x < box.x2 && p.y > box.y1 && p.y < box.y2)) {
+          covered += 1;
+        }
+      }
+      if (best === null || covered < best.covered) best = {covered, dx, dy, box};
+      if (covered === 0) break;
+    }
+    edge.style({"text-margin-x": best.dx, "text-margin-y": best.dy});
+    placed.push(best.box);
   });
 }
 
@@ -412,9 +501,10 @@ function renderGraph(snapshot) {
     });
     const layout = nodes.length > GRID_ABOVE
       ? {name: "grid", avoidOverlap: true, condense: true, animate: false}
-      : {name: "breadthfirst", directed: true, avoidOverlap: true, spacingFactor: 1.0, padding: 20,
+      : {name: "breadthfirst", directed: true, avoidOverlap: true, spacingFactor: 1.2, padding: 20,
         animate: false}; // writers above their readers, deterministic: the picture does not jump at each change
     cy.layout(layout).run();
+    if (nodes.length <= GRID_ABOVE) placeLabels(cy);
     cy.fit(undefined, 20);
     if (cy.zoom() > MAX_FIT_ZOOM) {
       cy.zoom(MAX_FIT_ZOOM);
