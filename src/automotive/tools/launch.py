@@ -521,14 +521,25 @@ def register_launcher(log_dir: Path, domain: int) -> Path | None:
     launcher runs all the same, `stop --log-dir` still finds it."""
     folder = runtime_folder()
     entry = folder / f"launcher-{os.getpid()}.json"
+    for _ in range(2):  # again if the last launcher to leave removed the folder in between
+        try:
+            folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+            temporary = folder / f".{entry.name}.tmp"
+            temporary.write_text(json.dumps({"launcher": os.getpid(), "log_dir": str(log_dir), "domain": domain}))
+            temporary.replace(entry)
+            return entry
+        except OSError:
+            continue
+    return None
+
+
+def unregister_launcher(entry: Path) -> None:
+    """Remove a launcher's entry, and the user's folder of them once empty (nothing left behind in TMPDIR)."""
+    entry.unlink(missing_ok=True)
     try:
-        folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-        temporary = folder / f".{entry.name}.tmp"
-        temporary.write_text(json.dumps({"launcher": os.getpid(), "log_dir": str(log_dir), "domain": domain}))
-        temporary.replace(entry)
-    except OSError:
-        return None
-    return entry
+        entry.parent.rmdir()
+    except OSError:  # another launcher's entry is there (or the folder is gone already)
+        pass
 
 
 def registered_launchers() -> list[RegisteredLauncher]:
@@ -544,7 +555,7 @@ def registered_launchers() -> list[RegisteredLauncher]:
         info = read_pid_file(launcher.log_dir)
         if info is None or info.get("launcher") != launcher.pid or (
                 launcher_running(info) is None and not app_pids(info)):
-            entry.unlink(missing_ok=True)
+            unregister_launcher(entry)
             continue
         found.append(launcher)
     return found
@@ -609,7 +620,7 @@ class Supervisor:
         if info is not None and info.get("launcher") == os.getpid():
             (self.log_dir / PID_FILE).unlink(missing_ok=True)
         if self.registry_entry is not None:
-            self.registry_entry.unlink(missing_ok=True)
+            unregister_launcher(self.registry_entry)
             self.registry_entry = None
 
     def start_all(self) -> None:
