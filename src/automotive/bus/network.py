@@ -273,13 +273,22 @@ class NetworkConfig:
         elif self.mode == LOOPBACK:
             prune = "" if self.cyclone_0_10 else f' PruneDelay="{PROBE_FOREVER}"'
             host = self.lan_interface()
+            only_loopback = _is_loopback(host)
             # With a LAN interface: multicast discovery on the loopback device only (its socket also hears the
             # default tools' looped-back multicast), unicast only on the LAN interface, no multicast group joined.
-            interfaces = [("General/Interfaces", '<Interfaces><NetworkInterface name="lo" multicast="true" '
-                           f'allow_multicast="spdp"/><NetworkInterface name={quoteattr(host)} '
-                           'allow_multicast="false"/></Interfaces>')] if host else _interfaces_element("lo")
+            # On a host whose only interface is the loopback (where Cyclone's default tools multicast on lo and join
+            # the group there): multicast discovery on lo, the group joined on lo.
+            if only_loopback:
+                interfaces = [("General/Interfaces", '<Interfaces><NetworkInterface name="lo" multicast="true" '
+                               'allow_multicast="spdp"/></Interfaces>')]
+            elif host:
+                interfaces = [("General/Interfaces", '<Interfaces><NetworkInterface name="lo" multicast="true" '
+                               f'allow_multicast="spdp"/><NetworkInterface name={quoteattr(host)} '
+                               'allow_multicast="false"/></Interfaces>')]
+            else:
+                interfaces = _interfaces_element("lo")
             elements += [*interfaces, ("General/AllowMulticast", _text("AllowMulticast", "false"))]
-            if host:
+            if host and not only_loopback:
                 elements.append(("General/MulticastRecvNetworkInterfaceAddresses",
                                  _text("MulticastRecvNetworkInterfaceAddresses", "none")))
             elements += [("Discovery/Peers", f'<Peers><Peer address="{LOCALHOST}"{prune}/></Peers>'),
@@ -410,9 +419,10 @@ class UserConfig:
 
 
 def host_interface() -> str:
-    """The interface a Cyclone participant on its defaults uses on this host ("" if the host has only loopback): as
-    Cyclone chooses, the first one that is up and has an IPv4 address, preferring one that can multicast, then one
-    that is not point-to-point."""
+    """The interface a Cyclone participant on its defaults uses on this host: as Cyclone chooses, the first one that
+    is up and has an IPv4 address, preferring one that can multicast, then one that is not point-to-point; the
+    loopback device ("lo") only where it is the only one (a host offline, a container without a network); "" where
+    not even that is up."""
     stats = psutil.net_if_stats()
     best, best_quality = "", 0
     for name, addresses in psutil.net_if_addrs().items():
@@ -421,6 +431,8 @@ def host_interface() -> str:
             continue
         flags = set(status.flags.split(","))
         if "loopback" in flags:
+            if name == "lo" and not best:  # automotive.cyclone.hostonly filters on the device named lo
+                best = name
             continue
         quality = 3 if "multicast" in flags else 1 if "pointopoint" in flags else 2
         if quality > best_quality:
