@@ -46,6 +46,15 @@ device's). So loopback mode also uses that interface (the one Cyclone would choo
 - Cyclone is told not to ask on which interface a datagram arrived (ExtendedPacketInfo), or it would drop the default
   tools' multicast, which arrives on an interface it uses for unicast only.
 
+On a host whose only interface is the loopback (a laptop offline, a container without a network, a CI sandbox),
+Cyclone's defaults use lo for everything: SPDP multicast to 239.255.0.1 on lo, the group joined there, unicast on
+ephemeral ports (docs/measurements/host-discovery.md). There :func:`host_interface` is lo itself, and loopback mode
+announces itself by multicast on lo and joins the group there too (no other interface exists for it to leave by),
+besides the probes of 127.0.0.1; the sockets get the same filter. Cyclone reads the interfaces once: when a LAN
+interface comes up later, a participant started before goes on with everyone it reaches through lo (the applications,
+started before or after, RTI, Fast DDS, Cyclone tools started before), but not a Cyclone tool on its defaults started
+after, which uses the new interface only.
+
 Late joiners: a tool of another DDS implementation (RTI Admin Console, rtiddsspy, Shapes Demo, RViz2 on Fast DDS)
 started on a host where the system already runs announces itself only to the few participant indexes it probes by
 default (RTI 0-4, Fast DDS 0-3), so the participants with higher indexes must find it themselves. In loopback and
