@@ -328,7 +328,8 @@ class NetworkConfig:
         return elements
 
     def lan_interface(self) -> str:
-        """Loopback mode: the LAN interface the participants also use for unicast on this host ("" for none)."""
+        """Loopback mode: the interface Cyclone's default tools use on this host, which the participants also use: a LAN
+        interface (for unicast), or lo on a host with only the loopback (multicast discovery there); "" for none."""
         if self.mode != LOOPBACK or self.cyclone_0_10:
             return ""
         if self.host_interface is not None:
