@@ -81,6 +81,13 @@ def test_network_configurations() -> None:
     assert "<AllowMulticast>false" in on_lan and "<MulticastRecvNetworkInterfaceAddresses>none<" in on_lan
     assert "<ExtendedPacketInfo>false</ExtendedPacketInfo>" in on_lan and "<MulticastTimeToLive>" not in on_lan
     assert '<Peer address="127.0.0.1" PruneDelay="inf"/>' in on_lan
+    # on a host whose only interface is the loopback, as Cyclone's defaults there: multicast discovery on lo, the group
+    # joined there (MulticastRecvNetworkInterfaceAddresses at Cyclone's default), and the probes of 127.0.0.1
+    only_lo = replace(NetworkConfig.from_settings(), host_interface="lo").cyclone_xml()
+    assert ('<Interfaces><NetworkInterface name="lo" multicast="true" allow_multicast="spdp"/></Interfaces>'
+            in only_lo)
+    assert "<MulticastRecvNetworkInterfaceAddresses>" not in only_lo and "<AllowMulticast>false" in only_lo
+    assert '<Peer address="127.0.0.1" PruneDelay="inf"/>' in only_lo and "<SPDPInterval>2s<" in only_lo
 
     lan = NetworkConfig.from_settings(interface="eth1").cyclone_xml()
     assert '<NetworkInterface name="eth1"/>' in lan and "<AllowMulticast>true" in lan and "<Peer" not in lan

@@ -48,8 +48,9 @@ class CheckedWriter(DataWriter[T]):
 
 
 def open_domain(domain_id: int, network: NetworkConfig, plan: PeerPlan, log: logging.Logger) -> Domain:
-    """The Cyclone domain with the applications' network configuration. In loopback mode with the host's LAN
-    interface, its sockets are made deaf to other hosts (automotive.cyclone.hostonly) before any participant joins it;
+    """The Cyclone domain with the applications' network configuration. In loopback mode with the interface
+    Cyclone's default tools use on this host (its LAN interface; lo on a host with only the loopback), its sockets are
+    made deaf to other hosts (automotive.cyclone.hostonly) before any participant joins it;
     if that cannot be done, or the domain's discovery multicast port is another program's, the domain is opened on
     127.0.0.1 only, with a warning: the application runs, unseen by Cyclone's default tools."""
     lan_interface = "" if network.network_from_user else network.lan_interface()

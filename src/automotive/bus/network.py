@@ -46,6 +46,15 @@ device's). So loopback mode also uses that interface (the one Cyclone would choo
 - Cyclone is told not to ask on which interface a datagram arrived (ExtendedPacketInfo), or it would drop the default
   tools' multicast, which arrives on an interface it uses for unicast only.
 
+On a host whose only interface is the loopback (a laptop offline, a container without a network, a CI sandbox),
+Cyclone's defaults use lo for everything: SPDP multicast to 239.255.0.1 on lo, the group joined there, unicast on
+ephemeral ports (docs/measurements/host-discovery.md). There :func:`host_interface` is lo itself, and loopback mode
+announces itself by multicast on lo and joins the group there too (no other interface exists for it to leave by),
+besides the probes of 127.0.0.1; the sockets get the same filter. Cyclone reads the interfaces once: when a LAN
+interface comes up later, a participant started before goes on with everyone it reaches through lo (the applications,
+started before or after, RTI, Fast DDS, Cyclone tools started before), but not a Cyclone tool on its defaults started
+after, which uses the new interface only.
+
 Late joiners: a tool of another DDS implementation (RTI Admin Console, rtiddsspy, Shapes Demo, RViz2 on Fast DDS)
 started on a host where the system already runs announces itself only to the few participant indexes it probes by
 default (RTI 0-4, Fast DDS 0-3), so the participants with higher indexes must find it themselves. In loopback and
@@ -273,13 +282,22 @@ class NetworkConfig:
         elif self.mode == LOOPBACK:
             prune = "" if self.cyclone_0_10 else f' PruneDelay="{PROBE_FOREVER}"'
             host = self.lan_interface()
+            only_loopback = _is_loopback(host)
             # With a LAN interface: multicast discovery on the loopback device only (its socket also hears the
             # default tools' looped-back multicast), unicast only on the LAN interface, no multicast group joined.
-            interfaces = [("General/Interfaces", '<Interfaces><NetworkInterface name="lo" multicast="true" '
-                           f'allow_multicast="spdp"/><NetworkInterface name={quoteattr(host)} '
-                           'allow_multicast="false"/></Interfaces>')] if host else _interfaces_element("lo")
+            # On a host whose only interface is the loopback (where Cyclone's default tools multicast on lo and join
+            # the group there): multicast discovery on lo, the group joined on lo.
+            if only_loopback:
+                interfaces = [("General/Interfaces", '<Interfaces><NetworkInterface name="lo" multicast="true" '
+                               'allow_multicast="spdp"/></Interfaces>')]
+            elif host:
+                interfaces = [("General/Interfaces", '<Interfaces><NetworkInterface name="lo" multicast="true" '
+                               f'allow_multicast="spdp"/><NetworkInterface name={quoteattr(host)} '
+                               'allow_multicast="false"/></Interfaces>')]
+            else:
+                interfaces = _interfaces_element("lo")
             elements += [*interfaces, ("General/AllowMulticast", _text("AllowMulticast", "false"))]
-            if host:
+            if host and not only_loopback:
                 elements.append(("General/MulticastRecvNetworkInterfaceAddresses",
                                  _text("MulticastRecvNetworkInterfaceAddresses", "none")))
             elements += [("Discovery/Peers", f'<Peers><Peer address="{LOCALHOST}"{prune}/></Peers>'),
@@ -310,7 +328,8 @@ class NetworkConfig:
         return elements
 
     def lan_interface(self) -> str:
-        """Loopback mode: the LAN interface the participants also use for unicast on this host ("" for none)."""
+        """Loopback mode: the interface Cyclone's default tools use on this host, which the participants also use: a LAN
+        interface (for unicast), or lo on a host with only the loopback (multicast discovery there); "" for none."""
         if self.mode != LOOPBACK or self.cyclone_0_10:
             return ""
         if self.host_interface is not None:
@@ -410,9 +429,10 @@ class UserConfig:
 
 
 def host_interface() -> str:
-    """The interface a Cyclone participant on its defaults uses on this host ("" if the host has only loopback): as
-    Cyclone chooses, the first one that is up and has an IPv4 address, preferring one that can multicast, then one
-    that is not point-to-point."""
+    """The interface a Cyclone participant on its defaults uses on this host: as Cyclone chooses, the first one that
+    is up and has an IPv4 address, preferring one that can multicast, then one that is not point-to-point; the
+    loopback device ("lo") only where it is the only one (a host offline, a container without a network); "" where
+    not even that is up."""
     stats = psutil.net_if_stats()
     best, best_quality = "", 0
     for name, addresses in psutil.net_if_addrs().items():
@@ -421,6 +441,8 @@ def host_interface() -> str:
             continue
         flags = set(status.flags.split(","))
         if "loopback" in flags:
+            if name == "lo" and not best:  # automotive.cyclone.hostonly filters on the device named lo
+                best = name
             continue
         quality = 3 if "multicast" in flags else 1 if "pointopoint" in flags else 2
         if quality > best_quality:
