@@ -66,7 +66,8 @@ PROGRAMS = sorted(f"automotive.{folder}.{path.stem}" for folder in ("apps", "too
 SCRIPTS = {entry.name: entry.value for entry in importlib.metadata.distribution("automotive-databus").entry_points
            if entry.group == "console_scripts"}
 # Helpers that are programs for maintainers only (python -m ...), on no user's PATH.
-INTERNAL = {"automotive.tools.make_scene_data", "automotive.tools.delay_relay", "automotive.bench.rti_reader"}
+INTERNAL = {"automotive.tools.make_scene_data", "automotive.tools.delay_relay", "automotive.bench.rti_reader",
+            "automotive.bench.dds_readers"}
 
 
 @pytest.mark.parametrize("module", PROGRAMS)
