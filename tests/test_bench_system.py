@@ -227,7 +227,8 @@ def test_a_short_run_with_dds_readers_has_them_served_on_dds_and_prints_the_refe
     cyclonedds-tools)."""
     tmpdir, work = tmp_path / "tmpdir", tmp_path / "work"
     tmpdir.mkdir()
-    out = bench("system", "--dds-readers", "--reference-seconds", "3", "--warmup", "3", "--seconds", "8", "--domain",
+    # 8 s of reference: ddsperf prints a figure a second once its pong is found, which took up to 3 s here
+    out = bench("system", "--dds-readers", "--reference-seconds", "8", "--warmup", "3", "--seconds", "8", "--domain",
                 str(domain_id), "--shm-prefix", prefix, "--work", str(work), tmpdir=tmpdir).stdout.splitlines()
     check_short_run(out)
     readers = next((line for line in out if line.startswith("foreign DDS readers on the host: ")), "")

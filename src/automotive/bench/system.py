@@ -54,6 +54,7 @@ import argparse
 import json
 import os
 import re
+import shutil
 import sys
 import time
 from collections.abc import Iterable
@@ -486,7 +487,9 @@ def run(args: argparse.Namespace, work: Path) -> int:
         print(f"reference: ddsperf at the camera's size and rate, {args.reference_seconds} s", flush=True)
         reference = ddsperf_one_way(camera_frame_bytes(), args.reference_seconds, args.domain, REFERENCE_RATE_HZ)
         if reference is None:
-            print("reference: not measured (no ddsperf: Debian's cyclonedds-tools)", flush=True)
+            why = ("ddsperf gave no figure in that time" if shutil.which("ddsperf")
+                   else "no ddsperf: Debian's cyclonedds-tools")
+            print(f"reference: not measured ({why})", flush=True)
     apps = [one for one in series if one.name != LAUNCHER]
     launcher = next((one for one in series if one.name == LAUNCHER), None)
     figures = Figures(
