@@ -74,6 +74,17 @@ def format_guid(guid: Any) -> str:
     return ":".join(f"{word:x}" for word in struct.unpack(">4I", guid.bytes))
 
 
+def _cached(cache: dict[int, str], handle: int, look_up: Callable[[int], str]) -> str:
+    """``look_up(handle)``, kept in ``cache`` for at most _WRITER_CACHE writers (cleared when full: a writer is
+    looked up again, no more)."""
+    text = cache.get(handle)
+    if text is None:
+        if len(cache) >= _WRITER_CACHE:
+            cache.clear()
+        text = cache[handle] = look_up(handle)
+    return text
+
+
 class WriterNames:
     """Describes the writers of a reader's samples: GUID, the writer's entity name and its participant's name
     (from discovery data, looked up when first needed and kept for a bounded number of writers)."""
@@ -86,36 +97,27 @@ class WriterNames:
         self._participant_names: dict[Any, str] = {}  # participant key -> name, from the samples taken so far
 
     def describe(self, handle: int) -> str:
-        text = self._names.get(handle)
-        if text is None:
-            if len(self._names) >= _WRITER_CACHE:
-                self._names.clear()
-            text = self._names[handle] = self._look_up(handle)
-        return text
+        return _cached(self._names, handle, self._look_up)
 
     def participant(self, handle: int) -> str:
         """The name of the participant of a writer (its GUID prefix when it has no name; "unknown" when gone)."""
-        name = self._writer_participants.get(handle)
-        if name is None:
-            if len(self._writer_participants) >= _WRITER_CACHE:
-                self._writer_participants.clear()
-            name = self._writer_participants[handle] = self._participant_of(handle)
-        return name
+        return _cached(self._writer_participants, handle, self._participant_of)
+
+    def _endpoint(self, handle: int) -> Any:
+        """The writer's discovery data; None when it is no longer matched or cannot be read."""
+        try:
+            return self.reader.get_matched_publication_data(handle)
+        except Exception:  # Cyclone's error, or discovery data it cannot decode (a name that is not UTF-8)
+            return None
 
     def _participant_of(self, handle: int) -> str:
-        try:
-            endpoint = self.reader.get_matched_publication_data(handle)
-        except Exception:  # Cyclone's error, or discovery data it cannot decode
-            endpoint = None
+        endpoint = self._endpoint(handle)
         if endpoint is None:
             return "unknown"
         return self._participant_name(endpoint.participant_key) or format_guid(endpoint.participant_key)
 
     def _look_up(self, handle: int) -> str:
-        try:
-            endpoint = self.reader.get_matched_publication_data(handle)
-        except Exception:  # Cyclone's error, or discovery data it cannot decode (a name that is not UTF-8)
-            endpoint = None
+        endpoint = self._endpoint(handle)
         if endpoint is None:
             return f"writer {handle & 0xFFFFFFFFFFFFFFFF:x} (no longer matched)"
         text = f"writer {format_guid(endpoint.key)}"
