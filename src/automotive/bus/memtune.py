@@ -136,6 +136,8 @@ class PeriodicTrim:
         self.interval_s = interval_s
         self.checks = 0
         self.trims = 0
+        # The least resident memory since the last trim: (main heap, process); None before the first look.
+        self._lowest: tuple[int, int] | None = None
         self.thread = threading.Thread(target=self._run, name="malloc-trim", daemon=True)
 
     def start(self) -> PeriodicTrim:
@@ -144,16 +146,24 @@ class PeriodicTrim:
         return self
 
     def _run(self) -> None:
-        lowest: tuple[int, int] | None = None  # the least resident memory since the last trim: (main heap, process)
         while not self.stop.wait(self.interval_s):
-            heap_kB, process_kB = resident_kB()
-            if lowest is None or heap_kB > lowest[0] + HEAP_GROWTH_KB or process_kB > lowest[1] + GROWTH_KB:
-                give_back_free_memory()
-                self.trims += 1
-                lowest = resident_kB()
-            else:
-                lowest = (min(lowest[0], heap_kB), min(lowest[1], process_kB))
-            self.checks += 1
+            self.look()
+
+    def look(self) -> bool:
+        """One look (the thread makes one every ``interval_s``): trim when the resident memory grew since the last
+        trim, or when there was no trim yet. True when it trimmed."""
+        heap_kB, process_kB = resident_kB()
+        lowest = self._lowest
+        grew = lowest is None or heap_kB > lowest[0] + HEAP_GROWTH_KB or process_kB > lowest[1] + GROWTH_KB
+        if grew:
+            give_back_free_memory()
+            self.trims += 1
+            self._lowest = resident_kB()
+        else:
+            assert lowest is not None
+            self._lowest = (min(lowest[0], heap_kB), min(lowest[1], process_kB))
+        self.checks += 1
+        return grew
 
 
 def set_malloc_thresholds(mmap_bytes: int, trim_bytes: int) -> bool:
