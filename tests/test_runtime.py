@@ -17,7 +17,7 @@ import pytest
 from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 
 from automotive import config
-from automotive.bus.endpoints import Databus
+from automotive.bus.endpoints import Databus, wait_for_acks
 from automotive.bus.errors import ConfigError
 from automotive.bus.network import NetworkConfig, PeerPlan, plan_peers
 from automotive.bus.qos import QosProfiles
@@ -65,6 +65,48 @@ def test_writer_and_reader_from_profiles_exchange_data(domain_id: int) -> None:
         with pytest.raises(BoundError, match="Vision::VisionSensor.objects holds 11 elements"):
             vision_writer.write(VisionSensor(id=3, timestamp=POSIXTimestamp(1, 2), objects=[obj] * 11))
     finally:
+        bus.close()
+
+
+_STOPPABLE_ALERT_READER = """
+import logging, sys, time
+from automotive import config
+from automotive.bus.endpoints import Databus
+from automotive.bus.network import NetworkConfig
+from automotive.bus.qos import QosProfiles
+from automotive.types.Alerts import DriverAlerts
+bus = Databus(int(sys.argv[1]), QosProfiles(config.qos_file()), "AutomotiveLibrary", logging.getLogger("reader"),
+              NetworkConfig())
+reader = bus.reader("AlertTopic", DriverAlerts, "HMI")
+print("reader ready", flush=True)
+time.sleep(600)
+"""
+
+
+def test_wait_for_acks_is_false_while_a_matched_reader_does_not_acknowledge(domain_id: int) -> None:
+    """A reliable writer whose reader (another process, stopped by SIGSTOP) cannot acknowledge: wait_for_acks says
+    False when its time runs out (Cyclone DDS Python 11.0.1's own raises AttributeError there), then True once the
+    reader goes on."""
+    bus = Databus(domain_id, PROFILES, "AutomotiveLibrary", logging.getLogger("test"), NetworkConfig())
+    reader = subprocess.Popen([sys.executable, "-c", _STOPPABLE_ALERT_READER, str(domain_id)], stdout=subprocess.PIPE,
+                              text=True)
+    try:
+        writer = bus.writer("AlertTopic", DriverAlerts, "HMI")
+        assert reader.stdout is not None and reader.stdout.readline().strip() == "reader ready"
+        deadline = time.monotonic() + 60
+        while not writer.get_matched_subscriptions():
+            assert time.monotonic() < deadline, "the reader did not match in 60 s"
+            time.sleep(0.02)
+        reader.send_signal(signal.SIGSTOP)
+        writer.write(DriverAlerts(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=True,
+                                  backCollision=False, parkingCollision=False, driverAttention=False))
+        assert wait_for_acks(writer, int(0.2e9)) is False
+        reader.send_signal(signal.SIGCONT)
+        assert wait_for_acks(writer, int(60e9)) is True
+    finally:
+        reader.send_signal(signal.SIGCONT)
+        reader.kill()
+        reader.wait(timeout=30)
         bus.close()
 
 

@@ -17,6 +17,7 @@ from typing import Any
 from cyclonedds.core import DDSException
 
 from automotive.bus.app import Application, run
+from automotive.bus.endpoints import wait_for_acks
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
 from automotive.sim.lfsr import FramePattern
@@ -114,7 +115,7 @@ def publish(app: Application, writer: FrameWriter, write: Callable[[int, int], i
             app.log.debug("published %d frames: %.1f frames/s, %.1f MB/s", written, rate, rate * size / 1e6)
             window_frames = 0
 
-    acknowledged = writer.writer.wait_for_acks(int(ACK_TIMEOUT_S * 1e9)) if written else True
+    acknowledged = wait_for_acks(writer.writer, int(ACK_TIMEOUT_S * 1e9)) if written else True
     app.stats.record("totals", published=written, acknowledged=acknowledged)
     app.log.info("published %d frames in total%s", written,
                  "" if acknowledged else f" (not all acknowledged within {ACK_TIMEOUT_S:g} s)")

@@ -28,6 +28,7 @@ from mcap.reader import SeekingReader
 from automotive.bus.app import Application, run
 from automotive.bus.badsamples import BadSample
 from automotive.bus.diagnostics import DIAGNOSTICS_TOPIC
+from automotive.bus.endpoints import wait_for_acks
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
@@ -138,7 +139,7 @@ def body(app: Application) -> None:
             if not app.args.loop:
                 break
         for topic, writer in writers.items():
-            if not writer.writer.wait_for_acks(int(ACK_TIMEOUT_S * 1e9)):
+            if not wait_for_acks(writer.writer, int(ACK_TIMEOUT_S * 1e9)):
                 app.log.warning("[%s] not every sample acknowledged within %g s", topic, ACK_TIMEOUT_S)
         app.log.info("replayed %d samples: %s", sum(t.written for t in tracks.values()), counts(tracks))
         refused = sum(t.refused for t in tracks.values())

@@ -61,7 +61,7 @@ from automotive.bus.app import DEFAULT_LIBRARY
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.cli import on_signals
 from automotive.bus.contentfilter import ContentFilter, FilteredReader, FilterError
-from automotive.bus.endpoints import Databus
+from automotive.bus.endpoints import Databus, wait_for_acks
 from automotive.bus.errors import ConfigError, refused_as_config_error
 from automotive.bus.network import DEFAULT_MAX_PARTICIPANTS, NetworkConfig, read_user_config, user_uri
 from automotive.bus.ports import check_domain_id
@@ -560,7 +560,7 @@ class ShapeApplication:
                     pass  # an instance never written (stopped before the first write): nothing to end
         for writer in self.writers:
             try:
-                writer.wait_for_acks(ACK_WAIT_NS)
+                wait_for_acks(writer, ACK_WAIT_NS)
             except DDSException:
                 pass  # not acknowledged in time: nothing more to do before the writer goes
 
