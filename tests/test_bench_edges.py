@@ -291,6 +291,30 @@ def test_monitor_measures_its_cpu_and_a_short_run_is_not_judged(tmpdir_of_run: P
     assert left_in(tmpdir_of_run) == []
 
 
+def test_monitor_page_times_the_page_of_the_system_and_of_a_crowd(tmpdir_of_run: Path, domain_id: int,
+                                                                   other_domain_id: int) -> None:
+    result = bench("monitor_page", "--tries", "1", "--crowd", "3", "--domain", str(domain_id),
+                   "--crowd-domain", str(other_domain_id), tmpdir=tmpdir_of_run)
+    lines = result.stdout.splitlines()
+    phases = [json.loads(line) for line in lines if line.startswith("{")]
+    assert [phase["phase"] for phase in phases] == ["system", "crowd"], result.stdout
+    assert all(0 < phase["median_s"] < float("inf") and phase["tries"] == 1 for phase in phases), result.stdout
+    assert [phase["goal_s"] for phase in phases] == [10.0, 2.0], result.stdout
+    assert re.fullmatch(r"monitor_page_s=\d+\.\d\d", lines[-1]), lines[-1]
+    assert float(lines[-1].split("=")[1]) == pytest.approx(phases[0]["median_s"], abs=0.01)
+    assert left_in(tmpdir_of_run) == []
+
+
+@pytest.mark.parametrize("args", [["--tries", "0"], ["--crowd", "-1"], ["--domain", "5", "--crowd-domain", "5"],
+                                  ["--log-dir", "/proc/no-such/dir"]])
+def test_monitor_page_refuses_bad_arguments_in_one_line_before_starting(args: list[str], tmpdir_of_run: Path) -> None:
+    result = subprocess.run([sys.executable, "-m", "automotive.bench.monitor_page", *args],
+                            env=bench_env(tmpdir_of_run), capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and result.stdout == "", result.stdout + result.stderr
+    assert result.stderr.strip().splitlines()[-1].startswith("automotive bench monitor-page: "), result.stderr
+    assert left_in(tmpdir_of_run) == []
+
+
 @pytest.mark.parametrize("args", [["--seconds", "0"], ["--warmup", "-1"], ["--log-dir", "/proc/no-such/dir"]])
 def test_monitor_refuses_bad_arguments_in_one_line_before_starting(args: list[str], tmpdir_of_run: Path) -> None:
     result = subprocess.run([sys.executable, "-m", "automotive.bench.monitor", *args], env=bench_env(tmpdir_of_run),

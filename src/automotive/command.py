@@ -73,6 +73,7 @@ BENCHMARKS: dict[str, Command] = {
     "alert-latency": Command("automotive.bench.alert_latency", "vision to driver alert, end to end"),
     "console": Command("automotive.bench.console", "how many lines a second the launcher's console shows"),
     "monitor": Command("automotive.bench.monitor", "the monitor's CPU while the whole system runs"),
+    "monitor-page": Command("automotive.bench.monitor_page", "how soon the monitor's page shows what runs"),
     "system": Command("automotive.bench.system", "the whole system's CPU, camera latency and LiDAR hop"),
 }
 GROUPS = {"run": (APPS, "application"), "bench": (BENCHMARKS, "benchmark")}
