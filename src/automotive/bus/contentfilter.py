@@ -40,6 +40,7 @@ costs a few attribute reads and comparisons (``automotive bench filter`` measure
 from __future__ import annotations
 
 import enum
+import functools
 import importlib
 import operator
 import re
@@ -100,7 +101,13 @@ PARAMETER: /%[0-9]{1,2}/
 %ignore /[ \t\r\n]+/
 """
 
-_parser = Lark(_GRAMMAR, start=["condition", "literal"], parser="lalr", maybe_placeholders=False)
+
+@functools.cache
+def _parser() -> Lark:
+    """The grammar's parser, built on first use: building it is most of this module's import time (about 0.1 s),
+    which every program would pay at start, though few are given a filter."""
+    return Lark(_GRAMMAR, start=["condition", "literal"], parser="lalr", maybe_placeholders=False)
+
 
 _COMPARISONS: dict[str, Callable[[Any, Any], bool]] = {
     "=": operator.eq, "<>": operator.ne, "!=": operator.ne, "<": operator.lt, "<=": operator.le, ">": operator.gt,
@@ -253,7 +260,7 @@ class ContentFilter:
         if len(parameters) > MAX_PARAMETERS:
             raise FilterError(f"{len(parameters)} parameters given, at most {MAX_PARAMETERS} (%0..%99)")
         try:
-            tree = _parser.parse(expression, start="condition")
+            tree = _parser().parse(expression, start="condition")
         except UnexpectedInput as error:
             raise _syntax_error(expression, error) from None
         _check_depth(tree)
@@ -313,7 +320,7 @@ def _syntax_error(expression: str, error: UnexpectedInput) -> FilterError:
 def _parse_literal(text: str) -> Token | None:
     """A parameter's text as a literal token, or None when it is none (then it stands for that string)."""
     try:
-        tree = _parser.parse(text, start="literal")
+        tree = _parser().parse(text, start="literal")
     except UnexpectedInput:
         return None
     token = tree.children[0]
