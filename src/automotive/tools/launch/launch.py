@@ -31,9 +31,9 @@ stop, the launcher asks it for its threads' stacks (SIGUSR1), which go to its lo
 answers SIGUSR1 the same way, and `automotive launch stop` asks it before it kills a launcher that does not end.
 
 Each application is started as ``python -m automotive.apps.<name>`` with the launcher's own interpreter, so it runs
-the same installation. With --monitor the launcher also starts the monitor (``python -m automotive.tools.monitor``,
-on the same domain and network options; it is a tool, not one of the applications) beside them, watched and stopped
-like them, and says the page's URL once on the console.
+the same installation. With --monitor the launcher also starts the monitor (``python -m
+automotive.tools.monitor.monitor``, on the same domain and network options; it is a tool, not one of the applications)
+beside them, watched and stopped like them, and says the page's URL once on the console.
 """
 
 from __future__ import annotations
@@ -75,8 +75,8 @@ from automotive.bus.cli import (
 )
 from automotive.bus.console import LOG_LEVEL_VARIABLE, without_debug_record
 from automotive.bus.ports import check_domain_id
-from automotive.tools import children
-from automotive.tools.children import Child, Line
+from automotive.tools.support import children
+from automotive.tools.support.children import Child, Line
 
 # Every application of the system, in the order they are listed and started.
 APPS = children.APPS
@@ -110,9 +110,9 @@ DEBUG_LINE_GREP = "^[0-9:.]+ [^ ]+ debug: "
 # Not the HMI's "no alert source" or "no alert state yet": the start of a system is no alert.
 ALERT_LINE = re.compile(r"DRIVER ALERT|ALERT:|all clear|All clear|alert source (lost|LOST)")
 SUMMARY_FILE = "launch-summary.txt"
-MONITOR = "monitor"  # --monitor: the tool's name, as a label and as a program (automotive.tools.monitor)
-MONITOR_PORT = 8780  # the monitor's default (automotive.tools.monitoring.server.DEFAULT_PORT)
-# The monitor's line that gives its page's URL (automotive.tools.monitor.URL_LINE): said once by the launcher.
+MONITOR = "monitor"  # --monitor: the tool's name, as a label and as a program (automotive.tools.monitor.monitor)
+MONITOR_PORT = 8780  # the monitor's default (automotive.tools.monitor.server.DEFAULT_PORT)
+# The monitor's line that gives its page's URL (automotive.tools.monitor.monitor.URL_LINE): said once by the launcher.
 MONITOR_URL_LINE = re.compile(r"^automotive monitor: the page is on (\S+)$")
 # The -D settings of every application that the monitor takes too (it refuses keys it does not read).
 MONITOR_KEYS = ("config.domainId", "config.transport", "config.shmPrefix")  # shared memory: as the apps
@@ -840,7 +840,7 @@ def run_in_tmux(args: argparse.Namespace, argv: list[str]) -> int:
     if subprocess.run(["tmux", "has-session", "-t", f"={session}"], capture_output=True).returncode == 0:
         raise LaunchError(f"tmux session '{session}' already exists: `tmux attach -t {session}` to see it, "
                           f"`{PROG} stop` to stop it")
-    inner = [sys.executable, "-m", "automotive.start", "automotive.tools.launch", "--prog", PROG, *argv,
+    inner = [sys.executable, "-m", "automotive.start", "automotive.tools.launch.launch", "--prog", PROG, *argv,
              "--mode", "background", "--log-dir", str(args.log_dir), "--tmux-session", session]
     # A running tmux server starts new sessions with its own environment: hand over what the applications need.
     passed = {key: os.environ[key] for key in ("CYCLONEDDS_URI", "DISPLAY", "WAYLAND_DISPLAY", "XAUTHORITY",

@@ -1,0 +1,2 @@
+"""``automotive launch``: start the applications together, watch them, stop them; ``launch stop``, ``launch status``
+(:mod:`.launch`)."""
