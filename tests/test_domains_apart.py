@@ -66,7 +66,7 @@ from automotive.bus.ports import (
     discovery_unicast_port,
     domain_base,
 )
-from automotive.tools.launch.launch import RUNNING_LINE
+from automotive.tools.launch.display import RUNNING_LINE
 from automotive.tools.support import netlab
 from automotive.tools.support.children import STDOUT, Child, program_command
 

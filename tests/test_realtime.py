@@ -16,7 +16,8 @@ import pytest
 from apprunner import AppProcess
 
 from automotive.bus.realtime import LOCK_MEMORY_KEY, PRIORITY_KEY
-from automotive.tools.launch.launch import REALTIME_APPS, build_parser, plan
+from automotive.tools.launch.launch import build_parser
+from automotive.tools.launch.plan import REALTIME_APPS, plan
 from automotive.tools.support.children import DEFAULT_TIMEOUT
 
 PRIORITY = 7

@@ -80,7 +80,7 @@ from automotive.bus.network import NetworkConfig
 from automotive.bus.ports import MAX_PARTICIPANTS
 from automotive.bus.realtime import LOCK_MEMORY_KEY, MAX_PRIORITY, PRIORITY_KEY, priority_problem
 from automotive.cyclone.codecs import codec_for
-from automotive.tools.launch.launch import REALTIME_PRIORITY
+from automotive.tools.launch.plan import REALTIME_PRIORITY
 from automotive.tools.support.children import Child, program_command, stop_all, work_folder
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, IndicatorStatusEnum, POSIXTimestamp

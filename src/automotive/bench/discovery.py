@@ -33,7 +33,7 @@ from pathlib import Path
 
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
 from automotive.bus.latency import percentile
-from automotive.tools.launch.launch import RUNNING_LINE
+from automotive.tools.launch.display import RUNNING_LINE
 from automotive.tools.support import netlab
 from automotive.tools.support.children import Child, program_command, thread_cpu_by_name, work_folder
 

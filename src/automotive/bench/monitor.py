@@ -36,7 +36,7 @@ from pathlib import Path
 import psutil
 
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
-from automotive.tools.launch.launch import RUNNING_LINE
+from automotive.tools.launch.display import RUNNING_LINE
 from automotive.tools.support.children import Child, program_command, stop_all, work_folder
 
 PROG = "automotive bench monitor"

@@ -52,7 +52,7 @@ import psutil
 
 from automotive.bus import stats as status_records
 from automotive.bus.cli import ArgumentParser, add_domain_option, output_file, output_folder
-from automotive.tools.launch.launch import RUNNING_LINE
+from automotive.tools.launch.display import RUNNING_LINE
 from automotive.tools.support import netlab
 from automotive.tools.support.children import Child, program_command, work_folder
 
