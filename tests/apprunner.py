@@ -1,7 +1,8 @@
 """Run the project's programs as separate processes and wait on what they print (bounded waits, no sleeps).
 
 A thin layer over the project's one child-process helper (automotive.tools.support.children): programs are started by
-name (``vision``, ``record``...) as ``python -m automotive.<apps|tools>.<name>`` with the test's interpreter.
+name (``vision``, ``record``...) as ``python -m automotive.apps.<name>`` or ``automotive.tools.<room>.<name>``
+(children.program_module) with the test's interpreter.
 """
 
 from __future__ import annotations
