@@ -1,7 +1,8 @@
 """Run the project's programs as separate processes and wait on what they print (bounded waits, no sleeps).
 
-A thin layer over the project's one child-process helper (automotive.tools.children): programs are started by name
-(``vision``, ``record``...) as ``python -m automotive.<apps|tools>.<name>`` with the test's interpreter.
+A thin layer over the project's one child-process helper (automotive.tools.support.children): programs are started by
+name (``vision``, ``record``...) as ``python -m automotive.apps.<name>`` or ``automotive.tools.<room>.<name>``
+(children.program_module) with the test's interpreter.
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ import os
 import subprocess
 from pathlib import Path
 
-from automotive.tools.children import DEFAULT_TIMEOUT, Child, program_command
+from automotive.tools.support.children import DEFAULT_TIMEOUT, Child, program_command, program_module
 
 __all__ = ["DEFAULT_SIGINT", "DEFAULT_TIMEOUT", "AppProcess", "AppRunner", "CommandProcess", "signal_state"]
 
@@ -76,5 +77,5 @@ def command_of(name: str) -> str:
 
     if name in command.APPS:
         return f"automotive-{name.replace('_', '-')}"
-    module = f"automotive.tools.{name}"
+    module = program_module(name)
     return next(f"automotive {word}" for word, entry in command.TOOLS.items() if entry.module == module)

@@ -6,7 +6,7 @@ import os
 import subprocess
 from pathlib import Path
 
-from automotive.tools.children import program_command
+from automotive.tools.support.children import program_command
 
 DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")
 

@@ -156,10 +156,10 @@ def _transports(command: list[str], participants: int | None, defaults: bool, pr
 
 
 def private_shm(namespace: Any, folder: Path) -> list[str]:
-    """The prefix that runs a command inside ``namespace`` (an automotive.tools.netlab.Namespace) with ``folder`` as
-    its /dev/shm: Fast DDS's shared memory transport (on by default) then meets only the peers given the same folder,
-    never a Fast DDS participant of another test or of the host, and leaves nothing in the host's /dev/shm. (``ip
-    netns exec`` runs each command in a mount namespace of its own: the bind mount is that command's alone.)"""
+    """The prefix that runs a command inside ``namespace`` (an automotive.tools.support.netlab.Namespace) with
+    ``folder`` as its /dev/shm: Fast DDS's shared memory transport (on by default) then meets only the peers given the
+    same folder, never a Fast DDS participant of another test or of the host, and leaves nothing in the host's /dev/shm.
+    (``ip netns exec`` runs each command in a mount namespace of its own: the bind mount is that command's alone.)"""
     folder.mkdir(parents=True, exist_ok=True)
     return namespace.exec("sh", "-c", 'mount --bind "$0" /dev/shm && exec "$@"', str(folder))
 

@@ -24,8 +24,8 @@ import sys
 from pathlib import Path
 from types import TracebackType
 
-from automotive.tools import netlab
-from automotive.tools.children import Child
+from automotive.tools.support import netlab
+from automotive.tools.support.children import Child
 
 HOST_ADDRESS, LAN_ADDRESS = "10.232.0.1", "10.232.0.2"  # a private /24, used only inside the test's namespaces
 HOST_DEVICE, LAN_DEVICE = "eth0", "lan0"

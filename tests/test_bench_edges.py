@@ -21,8 +21,8 @@ import pytest
 from apprunner import DEFAULT_SIGINT, signal_state
 
 from automotive.bench import alert_latency, soak
-from automotive.tools import netlab
-from automotive.tools.children import Child, work_folder
+from automotive.tools.support import netlab
+from automotive.tools.support.children import Child, work_folder
 
 RUN_TIMEOUT_S = 300.0  # a benchmark's whole short run, many Python processes on a busy 2-core machine
 START_TIMEOUT_S = 120.0
@@ -90,7 +90,7 @@ def test_a_folder_of_the_user_is_kept_and_a_temporary_one_removed_also_on_an_err
 
 
 def test_sigterm_inside_a_work_folder_unwinds_and_removes_it(tmpdir_of_run: Path, started: list[Child]) -> None:
-    program = ("import sys, time\nfrom automotive.tools.children import work_folder\n"
+    program = ("import sys, time\nfrom automotive.tools.support.children import work_folder\n"
                "try:\n    with work_folder('bench-x-') as folder:\n        (folder / 'a').write_text('a')\n"
                "        print(folder, flush=True)\n        time.sleep(120)\n"
                "finally:\n    print('unwound', flush=True)\n")

@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 from automotive.bench import alert_latency, codecs
-from automotive.tools.children import thread_cpu_by_name
+from automotive.tools.support.children import thread_cpu_by_name
 
 
 class Recorded:

@@ -19,7 +19,7 @@ from test_bench_edges import NAMESPACES, bench, left_in, namespaces
 
 from automotive.bench import system
 from automotive.bench.soak import LAUNCHER
-from automotive.tools.children import APPS
+from automotive.tools.support.children import APPS
 from automotive.wire import shm
 
 ROW = re.compile(r"^(\w+)\s+(\d+\.\d\d|-)(\s|$)")

@@ -1,6 +1,6 @@
-"""automotive.tools.bridge: a real WebSocket client speaking the Foxglove SDK protocol (subprotocol foxglove.sdk.v1)
-sees every topic advertised with the recorder's schemas and receives the DDS sample bytes unchanged; a client that
-stops reading
+"""automotive.tools.foxglove_bridge.bridge: a real WebSocket client speaking the Foxglove SDK protocol (subprotocol
+foxglove.sdk.v1) sees every topic advertised with the recorder's schemas and receives the DDS sample bytes unchanged; a
+client that stops reading
 costs the bridge bounded memory and does not hold back a reliable writer."""
 
 from __future__ import annotations

@@ -151,9 +151,10 @@ def test_a_signal_while_a_program_starts_ends_it_with_one_line(command_line: lis
 def test_a_launcher_stopped_while_its_applications_start_ends_cleanly(tmp_path: Path, domain_id: int) -> None:
     """Issue 38: SIGTERM to a launcher whose applications are still importing: each ends on SIGTERM with exit code 0
     (not "killed by SIGTERM"), and so does the launcher."""
-    process = subprocess.Popen([*DEFAULT_SIGINT, sys.executable, "-m", "automotive.start", "automotive.tools.launch",
-                                "--mode", "background", "--domain", str(domain_id), "--log-dir", str(tmp_path),
-                                "vision", "hmi"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    process = subprocess.Popen([*DEFAULT_SIGINT, sys.executable, "-m", "automotive.start",
+                                "automotive.tools.launch.launch", "--mode", "background", "--domain", str(domain_id),
+                                "--log-dir", str(tmp_path), "vision", "hmi"],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                env={**os.environ, "DISPLAY": "", "WAYLAND_DISPLAY": ""})
     assert process.stdout is not None
     pids = []

@@ -17,9 +17,9 @@ from apprunner import AppRunner
 
 from automotive.apps.hmi import AlertView, ConsoleUI, Shown
 from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE
-from automotive.tools.launch import Console
+from automotive.tools.launch.display import Console
 
-LAUNCH = [sys.executable, "-m", "automotive.tools.launch"]
+LAUNCH = [sys.executable, "-m", "automotive.tools.launch.launch"]
 FAST_STATUS = ["-D", "config.statusInterval=0.5"]  # the status line every half second instead of every 5 s
 
 

@@ -393,8 +393,9 @@ def test_record_with_a_filter_records_only_what_it_accepts(apps: Any, domain_id:
 
 
 def test_the_shape_command_refuses_a_bad_filter() -> None:
-    result = subprocess.run([sys.executable, "-m", "automotive.tools.shape_main", "-S", "-t", "Square", "-d", "5",
-                             "--cft", "shapesize <= twenty"], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    result = subprocess.run([sys.executable, "-m", "automotive.tools.shapes.shape_main", "-S", "-t", "Square",
+                             "-d", "5", "--cft", "shapesize <= twenty"], capture_output=True, text=True, cwd=ROOT,
+                            timeout=60)
     assert_one_line_error(result, r"^automotive shape-main: --cft 'shapesize <= twenty': position 14: ShapeType has "
                                   r"no member 'twenty'")
     assert "failed to create content filtered topic" in result.stdout  # what the OMG suite's runner waits for

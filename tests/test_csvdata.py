@@ -124,7 +124,7 @@ def test_platform_data_file() -> None:
 
 @pytest.mark.not_fast  # runs the generator as its command
 def test_generator_is_deterministic(tmp_path: Path) -> None:
-    subprocess.run([sys.executable, "-m", "automotive.tools.make_scene_data", "--out", str(tmp_path)],
+    subprocess.run([sys.executable, "-m", "automotive.tools.support.make_scene_data", "--out", str(tmp_path)],
                    check=True, capture_output=True, timeout=60)
     for name in ("vision.csv", "platform.csv"):
         assert (tmp_path / name).read_bytes() == (DATA / name).read_bytes(), name

@@ -29,7 +29,7 @@ from automotive.bus import checkedreader
 from automotive.bus import stats as records
 from automotive.bus.checkedreader import CheckedReader
 from automotive.sim.lfsr import FramePattern
-from automotive.tools.children import program_command
+from automotive.tools.support.children import program_command
 from automotive.types.automotive import ShapeType
 from automotive.types.CameraImage import CameraImageData_64KiB
 from automotive.wire import shm

@@ -66,9 +66,9 @@ from automotive.bus.ports import (
     discovery_unicast_port,
     domain_base,
 )
-from automotive.tools import netlab
-from automotive.tools.children import STDOUT, Child, program_command
-from automotive.tools.launch import RUNNING_LINE
+from automotive.tools.launch.display import RUNNING_LINE
+from automotive.tools.support import netlab
+from automotive.tools.support.children import STDOUT, Child, program_command
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -1,9 +1,9 @@
 """Foxglove reads every channel, checked with Foxglove's own code: the running system recorded by
-automotive.tools.record and watched live through automotive.tools.bridge, every channel's schema parsed and every
-message decoded by the npm libraries the Foxglove app uses (tests/foxglove/decode.js: @mcap/core with CRCs checked,
-@foxglove/omgidl-parser + @foxglove/omgidl-serialization, @foxglove/rosmsg + @foxglove/rosmsg2-serialization,
-@foxglove/ws-protocol's client with its default subprotocol), and each decoded message equal, member by member, to what
-our own types decode from
+automotive.tools.record.record and watched live through automotive.tools.foxglove_bridge.bridge, every channel's schema
+parsed and every message decoded by the npm libraries the Foxglove app uses (tests/foxglove/decode.js: @mcap/core with
+CRCs checked, @foxglove/omgidl-parser + @foxglove/omgidl-serialization, @foxglove/rosmsg +
+@foxglove/rosmsg2-serialization, @foxglove/ws-protocol's client with its default subprotocol), and each decoded message
+equal, member by member, to what our own types decode from
 the same bytes and to the system's known inputs. The bridge accepts both subprotocol names."""
 
 from __future__ import annotations
@@ -31,7 +31,12 @@ from websockets.sync.client import connect
 from automotive.bus.endpoints import Databus
 from automotive.sim.lfsr import FramePattern
 from automotive.tools.flows import Flow, flows_with_diagnostics
-from automotive.tools.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, rewrite_request, rewrite_response
+from automotive.tools.foxglove_bridge.wsrelay import (
+    LEGACY_SUBPROTOCOL,
+    SDK_SUBPROTOCOL,
+    rewrite_request,
+    rewrite_response,
+)
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_

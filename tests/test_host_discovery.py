@@ -44,8 +44,8 @@ from dds_helpers import wait_until
 from lan_host import HOST_ADDRESS, LAN_ADDRESS, READY, LanHost, frames
 
 from automotive.bus.ports import domain_base
-from automotive.tools import netlab
-from automotive.tools.children import program_command
+from automotive.tools.support import netlab
+from automotive.tools.support.children import program_command
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = Path(__file__).resolve()

@@ -436,7 +436,7 @@ def test_record_and_replay_move_hostile_samples_unharmed(apps, domain_id: int, b
 
 
 def hostile_recording(path: Path) -> None:
-    """An MCAP file (as automotive.tools.record writes them) holding PlatformControl messages, one of them with
+    """An MCAP file (as automotive.tools.record.record writes them) holding PlatformControl messages, one of them with
     blinkerStatus 99:
     a sample Cyclone refuses to write. Such a file comes from another recorder, or is damaged."""
     flow = next(flow for flow in system_flows() if flow.topic == "PlatformControl")

@@ -20,12 +20,12 @@ from dds_helpers import wait_until
 
 from automotive import config
 from automotive.bus import stats
-from automotive.tools import children
-from automotive.tools.launch import SECOND_INTERRUPT_AFTER_S
+from automotive.tools.launch.supervisor import SECOND_INTERRUPT_AFTER_S
+from automotive.tools.support import children
 
 ROOT = Path(__file__).resolve().parent.parent
 # The console script automotive launch, as the running interpreter runs it.
-LAUNCH = [sys.executable, "-m", "automotive.tools.launch"]
+LAUNCH = [sys.executable, "-m", "automotive.tools.launch.launch"]
 APPS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "camera_pub",
         "camera_sub")
 # The first line that shows an application doing its work: a sample published or received.
@@ -316,7 +316,7 @@ def test_a_child_that_keeps_no_lines_hands_each_to_its_callback() -> None:
 
 
 def test_only_alerts_stand_out_on_the_console() -> None:
-    from automotive.tools.launch import ALERT_LINE
+    from automotive.tools.launch.display import ALERT_LINE
 
     assert ALERT_LINE.search("hmi: DRIVER ALERT: Front collision warning")
     assert ALERT_LINE.search("collision_avoidance: ALERT: driver attention needed")

@@ -57,17 +57,21 @@ def test_only_the_cyclone_layer_touches_cyclone_internals(path: Path) -> None:
     assert offences(path) == [], f"{path.relative_to(PACKAGE)} uses Cyclone internals outside automotive.cyclone"
 
 
-PROGRAMS = sorted(f"automotive.{folder}.{path.stem}" for folder in ("apps", "tools", "bench")
-                  for path in (PACKAGE / folder).glob("*.py")
-                  if path.stem not in ("__init__", "children", "flows", "cloudview", "wsrelay", "netlab", "ddsperf",
-                                       "mcap_recover"))
+# The modules that are no program: the tools' shared modules and their rooms' parts, the benchmarks' helpers.
+NOT_PROGRAMS = {"__init__", "children", "flows", "cloudview", "wsrelay", "netlab", "ddsperf", "mcap_recover",
+                "plan", "display", "supervisor", "registry",  # automotive.tools.launch's parts
+                "discovery", "model", "probes", "rules", "server", "text"}  # automotive.tools.monitor's parts
+PROGRAMS = sorted(".".join(["automotive", *path.relative_to(PACKAGE).with_suffix("").parts])
+                  for folder in ("apps", "tools", "bench")
+                  for path in (PACKAGE / folder).glob("**/*.py" if folder == "tools" else "*.py")
+                  if path.stem not in NOT_PROGRAMS)
 
 
 SCRIPTS = {entry.name: entry.value for entry in importlib.metadata.distribution("automotive-databus").entry_points
            if entry.group == "console_scripts"}
 # Helpers that are programs for maintainers only (python -m ...), on no user's PATH.
-INTERNAL = {"automotive.tools.make_scene_data", "automotive.tools.delay_relay", "automotive.bench.rti_reader",
-            "automotive.bench.dds_readers"}
+INTERNAL = {"automotive.tools.support.make_scene_data", "automotive.tools.support.delay_relay",
+            "automotive.bench.rti_reader", "automotive.bench.dds_readers"}
 
 
 @pytest.mark.parametrize("module", PROGRAMS)

@@ -1,10 +1,11 @@
 """The LiDAR view a person looks at: the picture (legend, axes in metres, a title that stays put) and its window.
 
 The picture is checked in-process through its matplotlib objects and pixels (automotive.tools.cloudview), then the
-running view (``python -m automotive.tools.lidar_view``) with a running LiDAR: its window on a private X display of a
-laptop's size (xwininfo for the geometry and the caption, screenshots for the pixels) and its --snapshot PNG, whose
-title, legend and axes must be pixel for pixel those of the in-process figure. And no window without a display:
-``--ui window`` is refused in one line before the view joins the bus, ``--ui auto`` logs the clouds and says why.
+running view (``python -m automotive.tools.lidar_view.lidar_view``) with a running LiDAR: its window on a private X
+display of a laptop's size (xwininfo for the geometry and the caption, screenshots for the pixels) and its --snapshot
+PNG, whose title, legend and axes must be pixel for pixel those of the in-process figure. And no window without a
+display: ``--ui window`` is refused in one line before the view joins the bus, ``--ui auto`` logs the clouds and says
+why.
 
 Where the clouds come from (issue 32): a LiDAR on the view's host sends them through shared memory (iceoryx2) and
 writes none on DDS for the view, which reads each one in place (:func:`read_cloud`); with ``config.transport=udp``
@@ -46,7 +47,7 @@ from shm_helpers import files_of
 from automotive.bus.endpoints import Databus
 from automotive.sim.scene import BACKGROUND_RGB, GROUND_RGB, SHAPE_RGB, LidarScene, ScanGrid
 from automotive.tools.cloudview import DEFAULT_SIZE, CloudFigure
-from automotive.tools.lidar_view import WINDOW_TITLE, CloudRate, cloud_points, fit_to_screen, status_line
+from automotive.tools.lidar_view.lidar_view import WINDOW_TITLE, CloudRate, cloud_points, fit_to_screen, status_line
 from automotive.types.automotive import ShapeType
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_, PointField_
 from automotive.wire.pointcloud import FLOAT32, decode_point_cloud2, read_cloud

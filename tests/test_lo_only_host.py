@@ -52,8 +52,8 @@ from test_host_discovery import (
 )
 from test_shape_main import CYCLONE_DEFAULTS, OURS, run_case
 
-from automotive.tools import netlab
-from automotive.tools.children import program_command
+from automotive.tools.support import netlab
+from automotive.tools.support.children import program_command
 
 ROOT = Path(__file__).resolve().parent.parent
 # `cyclonedds ps` started before the system scans this long: past the plain participant's wait for every flow.

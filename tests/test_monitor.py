@@ -4,7 +4,7 @@ Why: "my tool does not see the data" is the first question of every DDS user, an
 (an asynchronous writer's latency budget, RTI's requested lease, Fast DDS 2.9's XCDR1). The monitor answers it from
 discovery data by the DDS request-offered rules.
 
-- The rules and their words (automotive.tools.monitoring.rules) and the analysis (automotive.tools.monitoring.model)
+- The rules and their words (automotive.tools.monitor.rules) and the analysis (automotive.tools.monitor.model)
   are checked without DDS, with records made by hand: every RxO policy, partitions, the hints, discovery data with
   absurd values (a 64 KB name, an unknown vendor, QoS at its limits), flows from /diagnostics reports.
 - With the real applications (vision, lidar with the asynchronous LidarAsync writer, sensor_fusion,
@@ -46,8 +46,7 @@ from automotive import config
 from automotive.bus.endpoints import Databus
 from automotive.bus.network import NetworkConfig
 from automotive.bus.qos import QosProfiles
-from automotive.tools.children import program_command
-from automotive.tools.monitoring.model import (
+from automotive.tools.monitor.model import (
     STALE_AFTER_S,
     EndpointRecord,
     MeasuredFlow,
@@ -57,8 +56,8 @@ from automotive.tools.monitoring.model import (
     analyse,
     flows,
 )
-from automotive.tools.monitoring.probes import Counter, camera_program, wanted_readers
-from automotive.tools.monitoring.rules import (
+from automotive.tools.monitor.probes import Counter, camera_program, wanted_readers
+from automotive.tools.monitor.rules import (
     INFINITE_NS,
     RULES,
     VENDOR_CYCLONE,
@@ -72,7 +71,8 @@ from automotive.tools.monitoring.rules import (
     partitions_meet,
     reader_defaults,
 )
-from automotive.tools.monitoring.text import NAME_WIDTH, render, vehicle_lines
+from automotive.tools.monitor.text import NAME_WIDTH, render, vehicle_lines
+from automotive.tools.support.children import program_command
 from automotive.types.automotive import ShapeType
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 
@@ -680,8 +680,8 @@ def test_the_lidar_picture_is_a_png_that_changes_at_most_every_2_s(
 
     from PIL import Image
 
-    from automotive.tools.monitoring.discovery import DomainView
-    from automotive.tools.monitoring.probes import LIDAR_EVERY_S, LIDAR_SIZE
+    from automotive.tools.monitor.discovery import DomainView
+    from automotive.tools.monitor.probes import LIDAR_EVERY_S, LIDAR_SIZE
 
     view = DomainView(own_bus)
     deadline = time.monotonic() + TIMEOUT
@@ -896,7 +896,7 @@ def test_a_participant_that_comes_and_goes_1000_times_leaves_the_monitor_up_boun
 
 
 def test_100_participants_are_analysed_and_serialized_well_within_2_s(domain_id: int, own_bus: Databus) -> None:
-    from automotive.tools.monitoring.discovery import DomainView
+    from automotive.tools.monitor.discovery import DomainView
 
     many = subprocess.Popen([sys.executable, "-c", MANY, str(domain_id), "100"], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, text=True)

@@ -45,7 +45,7 @@ from apprunner import AppRunner
 from test_system import scene
 
 from automotive.bench.monitor_page import CROWD_SCRIPT, NoBrowser, chromium
-from automotive.tools.children import Child, program_command
+from automotive.tools.support.children import Child, program_command
 
 webdriver = pytest.importorskip("selenium.webdriver")
 from selenium.common.exceptions import TimeoutException  # noqa: E402

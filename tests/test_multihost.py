@@ -25,8 +25,8 @@ import pytest
 from apprunner import AppRunner, CommandProcess
 
 from automotive.bus.alerts import ALERT_TEXTS
-from automotive.tools import netlab
-from automotive.tools.children import program_command
+from automotive.tools.support import netlab
+from automotive.tools.support.children import program_command
 
 ROOT = Path(__file__).resolve().parent.parent
 SUBNET = "10.231.0"  # a private /24, used only inside the test's namespaces

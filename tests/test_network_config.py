@@ -32,9 +32,13 @@ from automotive.bus.app import RUNTIME_KEYS
 from automotive.bus.errors import ConfigError
 from automotive.bus.network import NETWORK_ELEMENTS, NetworkConfig, read_user_config
 from automotive.bus.properties import Properties, PropertyKeys
-from automotive.tools import bridge, lidar_view, record, replay, shapes, zenoh_bridge
-from automotive.tools.children import StatsChild, program_command
 from automotive.tools.flows import system_flows
+from automotive.tools.foxglove_bridge import bridge
+from automotive.tools.lidar_view import lidar_view
+from automotive.tools.record import record, replay
+from automotive.tools.shapes import shapes
+from automotive.tools.support.children import StatsChild, program_command
+from automotive.tools.zenoh import zenoh_bridge
 
 TIMEOUT = 60.0
 # The tests' own CYCLONEDDS_URI (conftest): the loopback configuration.

@@ -16,7 +16,7 @@ import pytest
 
 from automotive.bus.cli import output_file_problem, output_folder_problem
 from automotive.bus.stats import Stats
-from automotive.tools.children import program_command
+from automotive.tools.support.children import program_command
 
 ROOT = Path(__file__).resolve().parent.parent
 TIMEOUT = 60.0
@@ -64,7 +64,7 @@ FOLDERS = [
     Case(bench("scale"), "--log-dir", "logs", ("--sizes", "x")),
     Case(bench("zenoh_bridge"), "--log-dir", "logs", ("--seconds", "0")),
     Case(bench("soak"), "--memtrace", "memtrace"),
-    Case((sys.executable, "-m", "automotive.tools.launch", "--mode", "background"), "--log-dir", "logs",
+    Case((sys.executable, "-m", "automotive.tools.launch.launch", "--mode", "background"), "--log-dir", "logs",
          ("no_such_app",)),
 ]
 

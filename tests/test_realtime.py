@@ -16,8 +16,9 @@ import pytest
 from apprunner import AppProcess
 
 from automotive.bus.realtime import LOCK_MEMORY_KEY, PRIORITY_KEY
-from automotive.tools.children import DEFAULT_TIMEOUT
-from automotive.tools.launch import REALTIME_APPS, build_parser, plan
+from automotive.tools.launch.launch import build_parser
+from automotive.tools.launch.plan import REALTIME_APPS, plan
+from automotive.tools.support.children import DEFAULT_TIMEOUT
 
 PRIORITY = 7
 SETTINGS = ["-D", f"{PRIORITY_KEY}={PRIORITY}", "-D", f"{LOCK_MEMORY_KEY}=true"]
@@ -81,7 +82,7 @@ def test_not_permitted_one_line_each_and_the_application_runs(apps: object, doma
     # Root without CAP_SYS_NICE and CAP_IPC_LOCK: no real-time priority (RLIMIT_RTPRIO 0) and a finite
     # RLIMIT_MEMLOCK, as for an ordinary user.
     command = [SETPRIV, "--bounding-set=-sys_nice,-ipc_lock", "--inh-caps=-sys_nice,-ipc_lock", "--"]
-    from automotive.tools.children import program_command
+    from automotive.tools.support.children import program_command
 
     platform = apps.start_command("vehicle_platform", [  # type: ignore[attr-defined]
         *command, *program_command("vehicle_platform", "--domain", str(domain_id), "-D", "config.statusInterval=1",

@@ -1,6 +1,6 @@
-"""automotive.tools.record: a recording read back with the official `mcap` library and with `rosbags` (an independent
-reader), every field of known samples equal; a killed recorder's file; Ctrl-C and SIGTERM; a full disk (a small tmpfs
-of the test's own, in a mount namespace); bad input."""
+"""automotive.tools.record.record: a recording read back with the official `mcap` library and with `rosbags` (an
+independent reader), every field of known samples equal; a killed recorder's file; Ctrl-C and SIGTERM; a full disk (a
+small tmpfs of the test's own, in a mount namespace); bad input."""
 
 from __future__ import annotations
 
@@ -26,9 +26,9 @@ from rosbags.highlevel import AnyReader
 
 from automotive.bus.endpoints import Databus
 from automotive.sim.scene import LidarScene, ScanGrid
-from automotive.tools.children import Child, program_command
 from automotive.tools.flows import system_flows
-from automotive.tools.record import EXIT_WRITE_FAILED, file_end, index_chunks
+from automotive.tools.record.record import EXIT_WRITE_FAILED, file_end, index_chunks
+from automotive.tools.support.children import Child, program_command
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_

@@ -1,5 +1,5 @@
-"""automotive.tools.replay: a recorded drive replayed into sensor fusion and collision avoidance gives the recorded
-alerts; an RTI Connext reader receives replayed samples as it received the live ones; channels that are not the
+"""automotive.tools.record.replay: a recorded drive replayed into sensor fusion and collision avoidance gives the
+recorded alerts; an RTI Connext reader receives replayed samples as it received the live ones; channels that are not the
 system's are
 skipped; bad input."""
 

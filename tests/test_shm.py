@@ -38,7 +38,7 @@ from automotive.bus import stats
 from automotive.bus.qos import WRITER_REPRESENTATION
 from automotive.cyclone import serdata
 from automotive.sim import lfsr
-from automotive.tools.children import program_command
+from automotive.tools.support.children import program_command
 from automotive.types.CameraImage import CameraImageData_64KiB
 from automotive.wire.camera import FrameWriter, shared_frames
 from automotive.wire.shm import SharedMemory, SharedReader, SharedWriter

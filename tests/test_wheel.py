@@ -80,10 +80,10 @@ def test_the_wheel_holds_one_package_with_its_configuration(installed: Installat
                     "automotive/config/properties/data/platform.csv", "automotive/config/qos/automotive_qos.xml",
                     "automotive/config/idl/automotive.idl", "automotive/types/.idlpy_manifest",
                     # automotive monitor's page, served from package data
-                    "automotive/tools/monitoring/page/index.html", "automotive/tools/monitoring/page/app.js",
-                    "automotive/tools/monitoring/page/style.css",
-                    "automotive/tools/monitoring/page/vendor/cytoscape.min.js",
-                    "automotive/tools/monitoring/page/vendor/cytoscape.LICENSE"):
+                    "automotive/tools/monitor/page/index.html", "automotive/tools/monitor/page/app.js",
+                    "automotive/tools/monitor/page/style.css",
+                    "automotive/tools/monitor/page/vendor/cytoscape.min.js",
+                    "automotive/tools/monitor/page/vendor/cytoscape.LICENSE"):
         assert shipped in names, shipped
     where = installed.run("python", "-c", "import automotive; print(automotive.__file__)")
     assert where.stdout.startswith(str(installed.venv)), where.stdout + where.stderr  # not the source tree

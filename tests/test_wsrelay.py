@@ -1,6 +1,6 @@
-"""automotive.tools.wsrelay on its own, in front of a plain TCP server: the handshake of a client offering only the old
-subprotocol name is rewritten both ways, every byte after it passes unchanged in both directions, an oversized or
-unfinished request head is dropped, and stop() ends every connection."""
+"""automotive.tools.foxglove_bridge.wsrelay on its own, in front of a plain TCP server: the handshake of a client
+offering only the old subprotocol name is rewritten both ways, every byte after it passes unchanged in both directions,
+an oversized or unfinished request head is dropped, and stop() ends every connection."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from automotive.tools import wsrelay
-from automotive.tools.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, SubprotocolRelay
+from automotive.tools.foxglove_bridge import wsrelay
+from automotive.tools.foxglove_bridge.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, SubprotocolRelay
 
 TIMEOUT = 30.0
 PAYLOAD = bytes(range(256)) * (8 * 4096)  # 8 MiB each way: many times the relay's pipes and socket buffers

@@ -1,6 +1,6 @@
 """The site bridge's parts without a network: its Zenoh configuration (nothing scouted, TLS or plainly allowed TCP),
 key expressions, the envelope of a sample, budgets and bounded queues, Zenoh's log turned into our lines, and its
-bad input (automotive.wire.zenoh_link, automotive.bus.budget, automotive.tools.zenoh_certs and zenoh_bridge). The
+bad input (automotive.wire.zenoh_link, automotive.bus.budget, automotive.tools.zenoh.zenoh_certs and zenoh_bridge). The
 bridge between namespaces is in test_zenoh_sites.py."""
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from test_bad_input import assert_one_line_error
 from automotive.bus.budget import Budget, SampleQueue
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import Properties
-from automotive.tools.children import program_command
+from automotive.tools.support.children import program_command
 from automotive.wire.rawsample import SampleKind
 from automotive.wire.zenoh_link import (
     Envelope,
@@ -279,7 +279,7 @@ def test_without_the_fast_paths_the_bridge_runs_and_says_liveliness_is_not_carri
     ("zenoh_certs", ["certs", "site-a=10.0.0.2,bad host"], r"^automotive zenoh-certs: site site-a: 'bad host' is not "
                                                             r"an IP address or host name$"),
     ("delay_relay", ["--listen", "nowhere", "--target", "127.0.0.1:1"],
-     r"^python -m automotive.tools.delay_relay: argument --listen: 'nowhere' is not HOST:PORT"),
+     r"^python -m automotive.tools.support.delay_relay: argument --listen: 'nowhere' is not HOST:PORT"),
 ])
 def test_the_link_tools_refuse_bad_arguments_in_one_line(tmp_path: Path, program: str, args: list[str],
                                                          pattern: str) -> None:

@@ -1,13 +1,13 @@
 """Two sites joined only by the Zenoh bridge, over a shaped link between network namespaces
-(automotive.tools.zenoh_bridge).
+(automotive.tools.zenoh.zenoh_bridge).
 
 Site A (namespace za-*) runs vision, lidar, sensor_fusion and vehicle_platform; site B (zb-*) collision_avoidance and
 the HMI. Each site's DDS stays on its namespace's loopback; the only path between them is a veth pair that carries
 the bridges' mutual-TLS Zenoh link, shaped to 25 ms delay and 0.5 % loss each way (50 ms round trip, about 1 % of
 round trips hit) and 20 Mbit/s: with tc netem where the kernel has it; otherwise (this project's machines: no netem
 in the kernel) the rate with tc tbf, the loss with nftables and the delay with a relay in B that holds every byte
-25 ms each way (automotive.tools.delay_relay; B's bridge connects through it). A third namespace (zc-*, its own veth
-pair to A) holds a site whose certificate the CA did not sign. Needs root (ip netns); skipped otherwise. Namespaces
+25 ms each way (automotive.tools.support.delay_relay; B's bridge connects through it). A third namespace (zc-*, its own
+veth pair to A) holds a site whose certificate the CA did not sign. Needs root (ip netns); skipped otherwise. Namespaces
 carry the test process's pid and a counter in their names and are always deleted; every process is stopped before.
 """
 
@@ -28,8 +28,8 @@ import pytest
 from apprunner import AppRunner, CommandProcess
 
 from automotive.bus import stats
-from automotive.tools import netlab
-from automotive.tools.children import program_command
+from automotive.tools.support import netlab
+from automotive.tools.support.children import program_command
 
 ROOT = Path(__file__).resolve().parent.parent
 ADDRESS_A, ADDRESS_B = "10.234.0.1", "10.234.0.2"  # the A-B link: private addresses, only inside the namespaces

@@ -13,7 +13,8 @@ not argparse's subparsers, which would parse (and could reject) the programs' op
 Modules are imported only when chosen, so ``automotive --help`` starts no DDS.
 
 The eight applications also have their own commands (``automotive-vision`` ...): the per-application command line is
-part of the design. Internal helpers (``python -m automotive.tools.make_scene_data``, ``...delay_relay``) are not here.
+part of the design. Internal helpers (``python -m automotive.tools.support.make_scene_data``, ``...delay_relay``) are
+not here.
 """
 
 from __future__ import annotations
@@ -35,17 +36,20 @@ class Command(NamedTuple):
 
 
 TOOLS: dict[str, Command] = {
-    "launch": Command("automotive.tools.launch", "start the applications together, watch them, stop them"),
-    "record": Command("automotive.tools.record", "record topics of the bus to an MCAP file"),
-    "replay": Command("automotive.tools.replay", "publish a recording again, at its own pace"),
-    "foxglove-bridge": Command("automotive.tools.bridge", "serve the live bus to Foxglove (WebSocket)"),
-    "zenoh-bridge": Command("automotive.tools.zenoh_bridge", "carry chosen topics to another site over Eclipse Zenoh"),
-    "zenoh-certs": Command("automotive.tools.zenoh_certs", "make the certificates of two Zenoh sites (mutual TLS)"),
-    "shapes-demo": Command("automotive.tools.shapes", "a small Shapes Demo: publish a circle, or print circles"),
-    "shape-main": Command("automotive.tools.shape_main", "the OMG interoperability suite's shape application"),
-    "lidar-view": Command("automotive.tools.lidar_view", "show the LiDAR point cloud (a window or a PNG)"),
-    "config": Command("automotive.tools.config_export", "export the shipped configuration to edit it"),
-    "monitor": Command("automotive.tools.monitor", "who talks to whom on the domain, and why a pair does not match"),
+    "launch": Command("automotive.tools.launch.launch", "start the applications together, watch them, stop them"),
+    "record": Command("automotive.tools.record.record", "record topics of the bus to an MCAP file"),
+    "replay": Command("automotive.tools.record.replay", "publish a recording again, at its own pace"),
+    "foxglove-bridge": Command("automotive.tools.foxglove_bridge.bridge", "serve the live bus to Foxglove (WebSocket)"),
+    "zenoh-bridge": Command("automotive.tools.zenoh.zenoh_bridge",
+                            "carry chosen topics to another site over Eclipse Zenoh"),
+    "zenoh-certs": Command("automotive.tools.zenoh.zenoh_certs",
+                           "make the certificates of two Zenoh sites (mutual TLS)"),
+    "shapes-demo": Command("automotive.tools.shapes.shapes", "a small Shapes Demo: publish a circle, or print circles"),
+    "shape-main": Command("automotive.tools.shapes.shape_main", "the OMG interoperability suite's shape application"),
+    "lidar-view": Command("automotive.tools.lidar_view.lidar_view", "show the LiDAR point cloud (a window or a PNG)"),
+    "config": Command("automotive.tools.config.config_export", "export the shipped configuration to edit it"),
+    "monitor": Command("automotive.tools.monitor.monitor",
+                       "who talks to whom on the domain, and why a pair does not match"),
 }
 APPS: dict[str, Command] = {
     "vision": Command("automotive.apps.vision", "publishes the objects a vision sensor sees"),

@@ -1,4 +1,4 @@
-// shape_peer: the other side of the shape_main-compatible command (automotive.tools.shape_main) on eProsima Fast DDS 2.9, for
+// shape_peer: the other side of the shape_main-compatible command (automotive.tools.shapes.shape_main) on eProsima Fast DDS 2.9, for
 // tests/test_shape_main.py. It takes the options of the OMG interoperability suite's shape application that Fast DDS
 // 2.9 supports, with their meaning and defaults, and prints the same lines (topic and endpoint creation, matches,
 // incompatible QoS, deadlines, one line per sample and per instance that ends).

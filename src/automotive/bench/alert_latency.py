@@ -80,8 +80,8 @@ from automotive.bus.network import NetworkConfig
 from automotive.bus.ports import MAX_PARTICIPANTS
 from automotive.bus.realtime import LOCK_MEMORY_KEY, MAX_PRIORITY, PRIORITY_KEY, priority_problem
 from automotive.cyclone.codecs import codec_for
-from automotive.tools.children import Child, program_command, stop_all, work_folder
-from automotive.tools.launch import REALTIME_PRIORITY
+from automotive.tools.launch.plan import REALTIME_PRIORITY
+from automotive.tools.support.children import Child, program_command, stop_all, work_folder
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, IndicatorStatusEnum, POSIXTimestamp
 from automotive.types.Platform import PlatformControl

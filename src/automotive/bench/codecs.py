@@ -50,7 +50,7 @@ from automotive.cyclone import codec_hook, codecgen, fastpath, gate
 from automotive.cyclone.bounds import type_name
 from automotive.cyclone.codecs import codecs
 from automotive.sim.csvdata import load_vision_rows
-from automotive.tools.children import Child, program_command, thread_cpu_by_name
+from automotive.tools.support.children import Child, program_command, thread_cpu_by_name
 from automotive.types.Vision import VisionSensor
 
 PROG = "automotive bench codecs"

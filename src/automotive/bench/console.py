@@ -23,7 +23,7 @@ import time
 
 from automotive.bus.cli import ArgumentParser, add_domain_option
 from automotive.bus.console import LOG_LEVEL_VARIABLE
-from automotive.tools.children import Child, Line, program_command, work_folder
+from automotive.tools.support.children import Child, Line, program_command, work_folder
 
 PROG = "automotive bench console"
 GOAL_LINES_PER_S = 2.0

@@ -23,7 +23,7 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from automotive.bus.errors import ConfigError
-from automotive.tools.children import exit_on_sigterm
+from automotive.tools.support.children import exit_on_sigterm
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.wire.camera import frame_type
 

@@ -6,7 +6,7 @@ import os
 import shutil
 import time
 
-from automotive.tools.children import Child, stop_all, thread_cpu_by_name
+from automotive.tools.support.children import Child, stop_all, thread_cpu_by_name
 
 # ddsperf 0.10 (Debian's) does not know every element of our NetworkConfig's XML: a plain loopback configuration.
 DDSPERF_URI = ('<General><Interfaces><NetworkInterface name="lo"/></Interfaces><AllowMulticast>false</AllowMulticast>'

@@ -33,8 +33,9 @@ from pathlib import Path
 
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option
 from automotive.bus.latency import percentile
-from automotive.tools import launch, netlab
-from automotive.tools.children import Child, program_command, thread_cpu_by_name, work_folder
+from automotive.tools.launch.display import RUNNING_LINE
+from automotive.tools.support import netlab
+from automotive.tools.support.children import Child, program_command, thread_cpu_by_name, work_folder
 
 PROG = "automotive bench discovery"
 DISCOVERY_THREADS = ("tev", "dq.builtins")
@@ -142,7 +143,7 @@ def measure(args: argparse.Namespace, log_dir: Path) -> int:
     launcher = Child("launch", program_command("launch", *launch_args, python=namespace.prefix), env=env)
     try:
         try:
-            line = launcher.wait_for(launch.RUNNING_LINE, timeout=120)
+            line = launcher.wait_for(RUNNING_LINE, timeout=120)
         except AssertionError:
             raise SystemExit(f"{PROG}: the launcher ended before the system ran") from None
         print(line.split("| ", 1)[1].strip())

@@ -59,7 +59,7 @@ from automotive import config
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import (
+from automotive.tools.support.children import (
     STDERR,
     STDOUT,
     Child,

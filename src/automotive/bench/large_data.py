@@ -40,7 +40,7 @@ from pathlib import Path
 from automotive.bus import stats
 from automotive.bus.cli import ArgumentParser, add_domain_option, output_file
 from automotive.bus.network import NetworkConfig
-from automotive.tools.children import Child, RunFailed, StatsChild, program_command, work_folder
+from automotive.tools.support.children import Child, RunFailed, StatsChild, program_command, work_folder
 
 PROG = "automotive bench large-data"
 SIZES = {"64KiB": 64 * 1024, "1MiB": 1024 * 1024, "4MiB": 4 * 1024 * 1024}

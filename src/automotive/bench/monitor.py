@@ -36,8 +36,8 @@ from pathlib import Path
 import psutil
 
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
-from automotive.tools import launch
-from automotive.tools.children import Child, program_command, stop_all, work_folder
+from automotive.tools.launch.display import RUNNING_LINE
+from automotive.tools.support.children import Child, program_command, stop_all, work_folder
 
 PROG = "automotive bench monitor"
 GOAL_CPU_PCT = 5.0
@@ -130,7 +130,7 @@ def measure(args: argparse.Namespace, work: Path) -> int:
     monitor: Child | None = None
     try:
         try:
-            launcher.wait_for(launch.RUNNING_LINE, timeout=START_TIMEOUT_S)
+            launcher.wait_for(RUNNING_LINE, timeout=START_TIMEOUT_S)
         except AssertionError:
             raise SystemExit(f"{PROG}: the launcher ended before the system ran:\n{launcher.output[-2000:]}") from None
         mode = "text" if args.text else "page"

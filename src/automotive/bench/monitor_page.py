@@ -51,8 +51,8 @@ from automotive.bus.cli import (
     output_folder_problem,
 )
 from automotive.bus.ports import MAX_DOMAIN_ID
-from automotive.tools import launch
-from automotive.tools.children import Child, program_command, stop_all, work_folder
+from automotive.tools.launch.display import RUNNING_LINE
+from automotive.tools.support.children import Child, program_command, stop_all, work_folder
 
 PROG = "automotive bench monitor-page"
 SIX_FLOWS = ("VisionTopic", "rt/LidarTopic", "SensorObjects", "PlatformStatus", "PlatformControl", "AlertTopic")
@@ -214,7 +214,7 @@ def measure(args: argparse.Namespace, work: Path) -> int:
                 str(args.domain), "--except", "camera_pub,camera_sub"), env=env, keep=True)
             children.append(launcher)
             try:
-                launcher.wait_for(launch.RUNNING_LINE, timeout=START_TIMEOUT_S)
+                launcher.wait_for(RUNNING_LINE, timeout=START_TIMEOUT_S)
             except AssertionError:
                 raise SystemExit(f"{PROG}: the launcher ended before the system ran:\n"
                                  f"{launcher.output[-2000:]}") from None

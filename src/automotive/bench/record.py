@@ -2,10 +2,10 @@
 
     automotive bench record [--seconds 60] [--domain 86] [--compression none|lz4|zstd] [--keep FILE]
 
-Starts automotive.tools.record, then every application of the system on a private domain, loopback only: vision, lidar
-(a log line per frame), sensor_fusion, collision_avoidance, vehicle_platform, hmi (console), camera_pub at 30 frames/s
-of 4 MiB (it waits for its two readers: camera_sub and the recorder) with camera_sub, and a Shapes Demo circle. After
---seconds the producers are stopped, then the recorder (Ctrl-C: it finishes its file).
+Starts automotive.tools.record.record, then every application of the system on a private domain, loopback only: vision,
+lidar (a log line per frame), sensor_fusion, collision_avoidance, vehicle_platform, hmi (console), camera_pub at 30
+frames/s of 4 MiB (it waits for its two readers: camera_sub and the recorder) with camera_sub, and a Shapes Demo circle.
+After --seconds the producers are stopped, then the recorder (Ctrl-C: it finishes its file).
 
 Per topic: samples published (the producer's own numbered status records, --stats, counted from the moment the
 recorder matched that producer; "-" where the producer does not number what it writes), samples recorded, MB and MB/s;
@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 from automotive.bus.cli import ArgumentParser, add_domain_option, output_file
-from automotive.tools.children import StatsChild, work_folder
+from automotive.tools.support.children import StatsChild, work_folder
 
 PROG = "automotive bench record"
 START_TIMEOUT = 120.0  # ten Python processes starting on a busy 2-core machine

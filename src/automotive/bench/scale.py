@@ -37,7 +37,7 @@ from pathlib import Path
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.network import NetworkConfig
 from automotive.bus.ports import MAX_PARTICIPANTS
-from automotive.tools.children import StatsChild, stop_all, work_folder
+from automotive.tools.support.children import StatsChild, stop_all, work_folder
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE
 
 PROG = "automotive bench scale"

@@ -52,8 +52,9 @@ import psutil
 
 from automotive.bus import stats as status_records
 from automotive.bus.cli import ArgumentParser, add_domain_option, output_file, output_folder
-from automotive.tools import launch, netlab
-from automotive.tools.children import Child, program_command, work_folder
+from automotive.tools.launch.display import RUNNING_LINE
+from automotive.tools.support import netlab
+from automotive.tools.support.children import Child, program_command, work_folder
 
 PROG = "automotive bench soak"
 LAUNCHER = "launch"
@@ -341,7 +342,7 @@ def system_in_namespace(prog: str, name: str, domain: int, work: Path, launch_ar
         launcher = Child(LAUNCHER, program_command("launch", *command, python=namespace.prefix), env=dict(env))
         try:
             try:
-                line = launcher.wait_for(launch.RUNNING_LINE, timeout=120)
+                line = launcher.wait_for(RUNNING_LINE, timeout=120)
             except AssertionError:
                 raise SystemExit(f"{prog}: the launcher ended before the system ran:\n{launcher.output[-2000:]}") \
                     from None

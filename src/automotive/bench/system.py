@@ -78,7 +78,7 @@ from automotive.bus.cli import ArgumentParser, add_domain_option
 from automotive.bus.errors import ConfigError
 from automotive.bus.latency import percentile
 from automotive.bus.properties import Properties
-from automotive.tools.children import APPS, Child, work_folder
+from automotive.tools.support.children import APPS, Child, work_folder
 from automotive.wire.camera import FrameCodec, frame_type
 
 PROG = "automotive bench system"

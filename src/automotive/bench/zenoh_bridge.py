@@ -10,7 +10,7 @@ Three set-ups, one after the other, each in two phases:
   (collision_avoidance, hmi) on another, on this host, joined only by two bridges over mutual TLS on 127.0.0.1;
 - ``shaped``: the same two sites in network namespaces joined by a veth pair shaped to 25 ms delay, 0.5 % loss and
   20 Mbit/s each way (tc netem, or where the kernel has none tc tbf, nftables and a delaying relay,
-  python -m automotive.tools.delay_relay); needs root, skipped otherwise.
+  python -m automotive.tools.support.delay_relay); needs root, skipped otherwise.
 
 Phase 1, the system's flows at their own rates: a probe on each site reads every flow for --seconds and records,
 for the flows written on the other site (every flow, in ``direct``), samples/s, MB/s and the latency (reception time
@@ -43,10 +43,10 @@ from automotive.bus import stats
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.bus.latency import percentile
 from automotive.bus.network import NetworkConfig
-from automotive.tools import netlab
-from automotive.tools.children import Child, RunFailed, StatsChild, program_command, work_folder
-from automotive.tools.zenoh_certs import CertificateError
-from automotive.tools.zenoh_certs import make as make_certificates
+from automotive.tools.support import netlab
+from automotive.tools.support.children import Child, RunFailed, StatsChild, program_command, work_folder
+from automotive.tools.zenoh.zenoh_certs import CertificateError
+from automotive.tools.zenoh.zenoh_certs import make as make_certificates
 
 PROG = "automotive bench zenoh"
 MODULE = "automotive.bench.zenoh_bridge"
@@ -183,7 +183,7 @@ class ShapedLink:
         except AssertionError as error:
             raise RunFailed(f"the delaying relay did not start: {str(error).splitlines()[0]}") from None
         self.connect_b = f"127.0.0.1:{RELAY_PORT}"
-        self.how = "tc tbf (rate), nftables (loss), a delaying relay (python -m automotive.tools.delay_relay)"
+        self.how = "tc tbf (rate), nftables (loss), a delaying relay (python -m automotive.tools.support.delay_relay)"
         return a, b
 
     def close(self) -> None:

@@ -1,5 +1,5 @@
-"""Bounded queues of samples with a per-topic budget (the site bridge, automotive.tools.zenoh_bridge, keeps one per
-topic and direction between the databus and the link).
+"""Bounded queues of samples with a per-topic budget (the site bridge, automotive.tools.zenoh.zenoh_bridge, keeps one
+per topic and direction between the databus and the link).
 
 Written here rather than taken from Zenoh: Zenoh's own downsampling (its ``downsampling`` configuration) lets the
 first sample of each period through and drops the rest without counting them, where a bridge over a slow link must

@@ -1,7 +1,7 @@
 """A writer's liveliness asserted without writing: ``dds_assert_liveliness``, which Cyclone DDS Python does not bind.
 
 A writer of MANUAL_BY_TOPIC liveliness stays alive only while someone asserts it: by writing, or by this call. The
-site bridge (automotive.tools.zenoh_bridge) asserts its writers of another site's topics while that site's writers
+site bridge (automotive.tools.zenoh.zenoh_bridge) asserts its writers of another site's topics while that site's writers
 are alive, so that this site's readers see a writer lost when the other site's goes.
 
 Reached through ``cyclonedds.internal.load_cyclonedds`` (libddsc) with a ctypes prototype written for libddsc 11:

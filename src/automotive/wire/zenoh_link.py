@@ -1,5 +1,5 @@
-"""The Zenoh side of the site bridge (automotive.tools.zenoh_bridge): the session's configuration, key expressions,
-what travels with each sample, and Zenoh's own log turned into one-line reports.
+"""The Zenoh side of the site bridge (automotive.tools.zenoh.zenoh_bridge): the session's configuration, key
+expressions, what travels with each sample, and Zenoh's own log turned into one-line reports.
 
 - **Configuration.** Built from the bridge's properties, never from Zenoh's defaults where they send anything
   anywhere: multicast scouting and gossip off (Zenoh scouts UDP multicast 224.0.0.224:7446 by default in peer and

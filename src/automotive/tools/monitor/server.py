@@ -1,8 +1,8 @@
 """The monitor's web page: one page, its files and a WebSocket of snapshots, served by the monitor itself.
 
 :class:`PageServer` runs aiohttp (HTTP and WebSocket) on an asyncio loop in a thread of its own, beside the DDS side,
-which stays in the program's main thread (automotive.tools.monitor). The DDS side makes a snapshot at most once a
-second while someone watches, serializes it once (:meth:`Snapshot.to_json`) and hands the text to :meth:`publish`;
+which stays in the program's main thread (automotive.tools.monitor.monitor). The DDS side makes a snapshot at most once
+a second while someone watches, serializes it once (:meth:`Snapshot.to_json`) and hands the text to :meth:`publish`;
 every connected page gets that same text. A page that is slower than that skips to the latest snapshot.
 
 What it serves, all from package data (``page/``: index.html, app.js, style.css and the vendored cytoscape.js; no
@@ -97,7 +97,7 @@ def page_url(bind: str, port: int, token: str | None) -> str:
 
 def load_files() -> dict[str, tuple[bytes, str]]:
     """The page's files from package data, read once."""
-    folder = resources.files("automotive.tools.monitoring") / "page"
+    folder = resources.files("automotive.tools.monitor") / "page"
     found: dict[str, tuple[bytes, str]] = {}
     for name, content_type in FILES.items():
         item = folder

@@ -1,7 +1,7 @@
 """A small Shapes Demo: publish a moving circle, or print the circles others publish.
 
-    python -m automotive.tools.shapes publish --color BLUE [--shapesize 30]
-    python -m automotive.tools.shapes subscribe
+    python -m automotive.tools.shapes.shapes publish --color BLUE [--shapesize 30]
+    python -m automotive.tools.shapes.shapes subscribe
 
 Same topic (Circle), type (ShapeType: color key, x, y, shapesize; appendable) and QoS conventions as RTI Shapes
 Demo (the DDS defaults: reliable writer, best-effort reader; XCDR1 on the wire, which RTI readers accept), so it

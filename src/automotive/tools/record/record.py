@@ -55,7 +55,6 @@ from automotive.bus.cli import ArgumentParser, output_file
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
-from automotive.tools import mcap_recover
 from automotive.tools.flows import (
     Flow,
     FlowInput,
@@ -65,6 +64,7 @@ from automotive.tools.flows import (
     open_inputs,
     select,
 )
+from automotive.tools.record import mcap_recover
 from automotive.wire.filteredraw import FilteredRawReader
 from automotive.wire.rawsample import RawSample, SampleKind
 

@@ -6,7 +6,7 @@
 with records made by hand. :meth:`Snapshot.to_dict` / :meth:`Snapshot.to_json` is the document a page renders and
 ``--json`` prints.
 
-Which pairs match is the monitor's judgement by the DDS rules (automotive.tools.monitoring.rules): Cyclone tells the
+Which pairs match is the monitor's judgement by the DDS rules (automotive.tools.monitor.rules): Cyclone tells the
 matched endpoints of its *own* readers and writers only, never whether two other programs' endpoints matched.
 """
 
@@ -25,7 +25,7 @@ from automotive.bus.diagnostics import (
     LATENCY_P99,
     LATENCY_SAMPLES,
 )
-from automotive.tools.monitoring.rules import (
+from automotive.tools.monitor.rules import (
     INFINITE_NS,
     EndpointQos,
     Reason,

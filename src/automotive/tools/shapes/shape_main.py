@@ -69,7 +69,7 @@ from automotive.bus.qos import QosProfiles
 from automotive.bus.status import policy_name
 from automotive.bus.version import add_version_option
 from automotive.cyclone import logsink
-from automotive.tools.shapes import MovingShape
+from automotive.tools.shapes.shapes import MovingShape
 from automotive.types.shape import ShapeType
 
 PROG = "automotive shape-main"

@@ -24,7 +24,7 @@ kind the topic's writers offer, once discovery shows them (:meth:`Probes.follow`
 also tells which instance owns the alerts. The alert's reader is reliable and transient local (the state from before
 the monitor started) when every writer of its kind offers that. They are not the program's endpoints
 (automotive.bus.endpoints): in no /diagnostics report of the monitor, no match report, no console line; the analysis
-leaves them out of the mismatches and notices (automotive.tools.monitoring.model).
+leaves them out of the mismatches and notices (automotive.tools.monitor.model).
 
 Call :meth:`Probes.poll` at least every second (each reader keeps POLL_DEPTH samples per instance between two polls).
 """
@@ -50,7 +50,7 @@ from automotive.bus.endpoints import Databus
 from automotive.bus.properties import Properties
 from automotive.bus.qos import READER_REPRESENTATION
 from automotive.tools.flows import Flow, system_flows
-from automotive.tools.monitoring.model import (
+from automotive.tools.monitor.model import (
     STALE_AFTER_S,
     EndpointRecord,
     MeasuredFlow,

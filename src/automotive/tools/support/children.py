@@ -45,16 +45,21 @@ STDOUT, STDERR = "stdout", "stderr"
 # The programs of the project by the name people use (as the launcher and the tests name them), and their modules.
 APPS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "camera_pub",
         "camera_sub")
-TOOLS = ("record", "replay", "bridge", "lidar_view", "shapes", "launch", "config_export", "make_scene_data",
-         "zenoh_bridge", "zenoh_certs", "delay_relay", "shape_main", "monitor")
+# The tools' programs by the same names, each in its tool's room (automotive.tools.<room>.<name>).
+TOOL_ROOMS = {"record": "record", "replay": "record", "bridge": "foxglove_bridge", "lidar_view": "lidar_view",
+              "shapes": "shapes", "launch": "launch", "config_export": "config", "make_scene_data": "support",
+              "zenoh_bridge": "zenoh", "zenoh_certs": "zenoh", "delay_relay": "support", "shape_main": "shapes",
+              "monitor": "monitor"}
+TOOLS = tuple(TOOL_ROOMS)
 
 
 def program_module(name: str) -> str:
-    """The module of a program: ``vision`` -> ``automotive.apps.vision``, ``record`` -> ``automotive.tools.record``."""
+    """The module of a program: ``vision`` -> ``automotive.apps.vision``, ``record`` ->
+    ``automotive.tools.record.record``."""
     if name in APPS:
         return f"automotive.apps.{name}"
     if name in TOOLS:
-        return f"automotive.tools.{name}"
+        return f"automotive.tools.{TOOL_ROOMS[name]}.{name}"
     raise ValueError(f"unknown program '{name}' (applications: {', '.join(APPS)}; tools: {', '.join(TOOLS)})")
 
 

@@ -1,5 +1,5 @@
 """The DDS side of the monitor: Cyclone's built-in discovery readers and a reader of rt/diagnostics, turned into the
-records of automotive.tools.monitoring.model.
+records of automotive.tools.monitor.model.
 
 What discovery tells, measured with Cyclone DDS 11 (the built-in topics DCPSParticipant, DCPSPublication,
 DCPSSubscription):
@@ -37,7 +37,7 @@ from automotive.bus.diagnostics import DIAGNOSTICS_TOPIC
 from automotive.bus.endpoints import Databus
 from automotive.bus.properties import Properties
 from automotive.bus.qos import ROS2_DEFAULT_PROFILE
-from automotive.tools.monitoring.model import (
+from automotive.tools.monitor.model import (
     STALE_AFTER_S,
     EndpointRecord,
     ParticipantRecord,
@@ -45,8 +45,8 @@ from automotive.tools.monitoring.model import (
     Snapshot,
     analyse,
 )
-from automotive.tools.monitoring.probes import Probes
-from automotive.tools.monitoring.rules import INFINITE_NS, XCDR1, XCDR2, EndpointQos
+from automotive.tools.monitor.probes import Probes
+from automotive.tools.monitor.rules import INFINITE_NS, XCDR1, XCDR2, EndpointQos
 from automotive.types.diagnostic_msgs.msg.dds_ import DiagnosticArray_
 
 CHUNK = 256  # samples per read or take of a built-in topic

@@ -1,7 +1,7 @@
 """Replayer: writes the samples of an MCAP recording back onto the databus, as recorded.
 
-Data flow:  FILE (automotive.tools.record, or rosbag2 MCAP with the same topics)  -->  each channel's topic and schema
-matched to a flow of the system (automotive.tools.flows)  -->  the recorded CDR bytes written unchanged
+Data flow:  FILE (automotive.tools.record.record, or rosbag2 MCAP with the same topics)  -->  each channel's topic and
+schema matched to a flow of the system (automotive.tools.flows)  -->  the recorded CDR bytes written unchanged
 (automotive.wire.rawsample) with the flow's writer QoS, at the recorded pace scaled by --rate (0: as fast as flow
 control allows); disposals and unregistrations replayed as such.
 
@@ -78,8 +78,8 @@ def open_recording(path: Path) -> tuple[Any, SeekingReader]:
 
 
 def flow_of(channel: Any, flows: dict[str, Flow]) -> tuple[Flow | None, SampleKind]:
-    """The flow a channel feeds: by its DDS topic (automotive.tools.record's metadata) or its name, a ROS 2 name such as
-    /LidarTopic standing for the DDS topic rt/LidarTopic."""
+    """The flow a channel feeds: by its DDS topic (automotive.tools.record.record's metadata) or its name, a ROS 2 name
+    such as /LidarTopic standing for the DDS topic rt/LidarTopic."""
     metadata = channel.metadata or {}
     kind = {kind.value: kind for kind in SampleKind}.get(metadata.get("dds_sample_kind", ""), SampleKind.DATA)
     topic = metadata.get("dds_topic", channel.topic)

@@ -13,7 +13,8 @@ relative to the ego, and its size is the box it occupies along x, y, z of that f
 
 The files follow the original example's CSV formats (same header style and columns); the output is a function of
 --seed alone. The shipped files (automotive/config/properties/data) were made with the defaults:
-``python -m automotive.tools.make_scene_data --out src/automotive/config/properties/data`` in a clone of the repository.
+``python -m automotive.tools.support.make_scene_data --out src/automotive/config/properties/data`` in a clone of the
+repository.
 """
 
 from __future__ import annotations
@@ -277,7 +278,7 @@ def write_platform(scene: Scene, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = ArgumentParser(prog="python -m automotive.tools.make_scene_data",
+    parser = ArgumentParser(prog="python -m automotive.tools.support.make_scene_data",
                             description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--seed", type=int, default=20240514, help="random seed (default: %(default)s)")
     parser.add_argument("--rows", type=int, default=1000, help="samples per file, 10 per second (default: %(default)s)")

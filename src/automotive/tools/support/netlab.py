@@ -3,9 +3,9 @@
 Everything made here lives in namespaces that the caller creates and deletes (:class:`Namespace` is a context
 manager), so no datagram of a benchmark or test ever reaches the real host's interfaces. A link is shaped with
 ``tc netem`` where the kernel has it; where it has not (this project's machines), with ``tc tbf`` for the rate and an
-nftables ingress rule for the loss, and the caller adds the delay (``python -m automotive.tools.delay_relay`` holds
-every byte of a TCP link for a while): :func:`shape` says which it did. Needs root and iproute2 (+ nftables), which
-scripts/setup installs.
+nftables ingress rule for the loss, and the caller adds the delay (``python -m automotive.tools.support.delay_relay``
+holds every byte of a TCP link for a while): :func:`shape` says which it did. Needs root and iproute2 (+ nftables),
+which scripts/setup installs.
 """
 
 from __future__ import annotations

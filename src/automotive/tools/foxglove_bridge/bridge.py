@@ -4,7 +4,7 @@ Data flow:  every topic of the system and rt/diagnostics (automotive.tools.flows
 the reader side of its writer's QoS profile keeping only the newest sample  -->  serialized samples, never deserialized
 (automotive.wire.rawsample)  -->  one Foxglove channel per topic (message encoding ``cdr``, the recorder's schemas)  -->
 the Foxglove WebSocket server (foxglove-sdk, on a private loopback port)  -->  a front on ws://HOST:PORT that also
-accepts the protocol's older subprotocol name (automotive.tools.wsrelay)
+accepts the protocol's older subprotocol name (automotive.tools.foxglove_bridge.wsrelay)
 
 Open it in Foxglove with "Open connection" > "Foxglove WebSocket" > ws://127.0.0.1:8765. The LiDAR cloud shows in
 the 3D panel, every other flow in the Raw Messages and Plot panels, and every program's health (rt/diagnostics, ROS 2's
@@ -45,7 +45,7 @@ from automotive.tools.flows import (
     open_inputs,
     select,
 )
-from automotive.tools.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, SubprotocolRelay
+from automotive.tools.foxglove_bridge.wsrelay import LEGACY_SUBPROTOCOL, SDK_SUBPROTOCOL, SubprotocolRelay
 from automotive.wire.rawsample import SampleKind
 
 # The property keys it reads beyond the runtime's (automotive.bus.app.RUNTIME_KEYS): any other is refused at start.
@@ -99,7 +99,7 @@ def serve(app: Application, inputs: list[FlowInput], backlog: int, port: int) ->
     listener = SubscriptionLog(app)
     readers = [(flow_input, foxglove_channel(app, flow_input.flow)) for flow_input in inputs]
     # The SDK's server on a private loopback port, behind a front on --host/--port that also accepts the older
-    # subprotocol name (automotive.tools.wsrelay).
+    # subprotocol name (automotive.tools.foxglove_bridge.wsrelay).
     try:
         server = foxglove.start_server(name="automotive databus", host="127.0.0.1", port=0,
                                        message_backlog_size=backlog, server_listener=listener)

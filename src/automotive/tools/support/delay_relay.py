@@ -1,7 +1,7 @@
 """A TCP relay that delays every byte by a fixed time each way: link delay where the kernel has no tc netem (the
 Zenoh site tests and automotive bench zenoh shape their link with it, tc tbf and nftables).
 
-    python -m automotive.tools.delay_relay --listen 127.0.0.1:17447 --target 10.234.0.1:7447 --delay-ms 25
+    python -m automotive.tools.support.delay_relay --listen 127.0.0.1:17447 --target 10.234.0.1:7447 --delay-ms 25
 
 Each connection accepted on --listen is relayed to --target; what arrives on either side is passed on --delay-ms
 after it arrived, in order (a chunk waits for its time, so a stream keeps its rate and gains the delay). The bytes
@@ -19,7 +19,7 @@ import time
 
 from automotive.bus.cli import ArgumentParser
 
-PROG = "python -m automotive.tools.delay_relay"
+PROG = "python -m automotive.tools.support.delay_relay"
 
 
 def host_port(text: str) -> tuple[str, int]:

@@ -15,18 +15,18 @@ network options), so it sees what the applications see. It reads:
   of its last sample, deadline misses, liveliness changes and lost samples as the programs report them, and the
   latency each reader measures (p50/p99 over 10 s per topic and per writer: shown per topic, per pair and for the
   alert chain, marked "~" where writer and reader are on different hosts and so do not share a clock);
-- the system's flows with its own best-effort raw readers (automotive.tools.monitoring.probes): each flow's bytes/s,
+- the system's flows with its own best-effort raw readers (automotive.tools.monitor.probes): each flow's bytes/s,
   samples/s and last sample's age, and the vehicle (the alert and, in redundant mode, its owner; speed, steer,
   blinker; the fused objects; the LiDAR picture), decoding only what it shows. It never reads the camera's frames
   unless asked (--camera): their rate and latency come from camera_sub's /diagnostics. The LiDAR's clouds and the
   camera's frames of writers on its host come through shared memory, as the recorder reads them (config.transport,
   config.shmPrefix): the monitor makes no writer of its host write them on DDS.
 
-Which writer/reader pairs match is its judgement by the DDS rules (automotive.tools.monitoring.rules); for every pair
+Which writer/reader pairs match is its judgement by the DDS rules (automotive.tools.monitor.rules); for every pair
 of the same topic that does not, it gives the reasons in words, offered against requested. It writes no data: only its
 own /diagnostics, as every program. Its report goes to stdout, its log to stderr.
 
-The page (automotive.tools.monitoring.server, its files in automotive/tools/monitoring/page): the graph, the match
+The page (automotive.tools.monitor.server, its files in automotive/tools/monitor/page): the graph, the match
 analysis, the flows, the programs' health and the vehicle, live over a WebSocket. The snapshot is made at most once a
 second and only while a page (or a script reading /snapshot.json) watches; it is serialized once for every page.
 Binding to another address than a loopback one needs --token; without it the monitor refuses to start.
@@ -50,10 +50,10 @@ from automotive.bus.console import LOG_LEVEL_VARIABLE
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.tools.flows import check_transport
-from automotive.tools.monitoring.discovery import DomainView
-from automotive.tools.monitoring.model import Snapshot
-from automotive.tools.monitoring.server import DEFAULT_BIND, DEFAULT_PORT, PageServer, bind_problem, describe
-from automotive.tools.monitoring.text import render
+from automotive.tools.monitor.discovery import DomainView
+from automotive.tools.monitor.model import Snapshot
+from automotive.tools.monitor.server import DEFAULT_BIND, DEFAULT_PORT, PageServer, bind_problem, describe
+from automotive.tools.monitor.text import render
 
 PROPERTY_KEYS = PropertyKeys.of("config.transport", "config.shmPrefix")
 DEFAULT_WAIT_S = 3.0  # discovery on one host takes well under a second; the programs report every second
@@ -125,7 +125,7 @@ def live_text(app: Application, view: DomainView, out: TextIO) -> None:
 def serve(app: Application, view: DomainView, out: TextIO) -> None:
     """The page: a snapshot a second while someone watches, serialized once for every page."""
     args = app.args
-    # The other side's renderer of the LiDAR cloud (automotive.tools.monitoring.probes), when the view has one.
+    # The other side's renderer of the LiDAR cloud (automotive.tools.monitor.probes), when the view has one.
     lidar_png = getattr(getattr(view, "probes", None), "lidar_png", None)
     server = PageServer(args.bind, args.port, args.token, app.log, lidar_png if callable(lidar_png) else None)
     try:

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import time
 
-from automotive.tools.monitoring.model import CLOCK_NOT_SHARED, CLOCK_SHARED, Snapshot, Vehicle
-from automotive.tools.monitoring.rules import duration_words
+from automotive.tools.monitor.model import CLOCK_NOT_SHARED, CLOCK_SHARED, Snapshot, Vehicle
+from automotive.tools.monitor.rules import duration_words
 
 NAME_WIDTH = 48
 MESSAGE_WIDTH = 300

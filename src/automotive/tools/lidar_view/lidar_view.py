@@ -1,7 +1,7 @@
 """Point-cloud viewer: subscribes rt/LidarTopic and shows each cloud as a perspective view and a top view.
 
-    python -m automotive.tools.lidar_view --snapshot cloud.png [--count N] [--timeout S]   # a PNG of the Nth cloud
-    python -m automotive.tools.lidar_view [--ui auto|window|none]         # a live window, or log lines
+    automotive lidar-view --snapshot cloud.png [--count N] [--timeout S]   # a PNG of the Nth cloud
+    automotive lidar-view [--ui auto|window|none]         # a live window, or log lines
 
 Data flow:  sensor_msgs::msg::dds_::PointCloud2_ on rt/LidarTopic  -->  PNG file, window or log lines
 
