@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from cyclonedds.qos import Policy, Qos
@@ -10,6 +12,7 @@ from cyclonedds.qos import Policy, Qos
 from automotive import config
 from automotive.bus.errors import ConfigError
 from automotive.bus.qos import QosProfiles
+from automotive.bus.status import StatusListener, own_side
 
 ROOT = Path(__file__).resolve().parent.parent
 QOS_FILE = config.qos_file()
@@ -101,3 +104,23 @@ def test_missing_and_malformed_qos_files(tmp_path: Path) -> None:
     broken.write_text("<dds><qos_library name='L'>")
     with pytest.raises(ConfigError, match="broken.xml: not a readable QoS XML file"):
         QosProfiles(broken)
+
+
+def test_an_incompatible_qos_event_for_an_endpoint_being_deleted_is_said_without_its_side(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """Cyclone calls the listener with None for a reader or writer being deleted (seen in the monitor's tests, as an
+    exception in the listener): the line names the policy, without what this side asked."""
+    listener = StatusListener("VisionTopic", logging.getLogger("test.status"))
+    ownership = 6  # DDS_OWNERSHIP_QOS_POLICY_ID
+    with caplog.at_level(logging.WARNING, logger="test.status"):
+        listener.on_requested_incompatible_qos(None, SimpleNamespace(last_policy_id=ownership, total_count=1,
+                                                                     total_count_change=1))
+        listener.on_offered_incompatible_qos(None, SimpleNamespace(last_policy_id=ownership, total_count=1,
+                                                                   total_count_change=1))
+    assert [record.getMessage() for record in caplog.records] == [
+        "[VisionTopic] a writer was seen but does not match: incompatible QoS OWNERSHIP (the writer offers another "
+        "ownership)",
+        "[VisionTopic] a reader was seen but does not match: incompatible QoS OWNERSHIP (the reader requests another "
+        "ownership)"]
+    exclusive = Qos(Policy.Ownership.Exclusive)
+    assert own_side(ownership, exclusive, reader=True).startswith("this reader requests EXCLUSIVE ownership")

@@ -15,7 +15,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from cyclonedds.core import Listener
+from cyclonedds.core import DDSException, Listener
 from cyclonedds.qos import Policy
 
 from automotive.bus.badsamples import BadSampleReporter
@@ -46,12 +46,25 @@ def _seconds(duration_ns: int) -> str:
     return "infinite" if duration_ns >= 2**63 - 1 else f"{duration_ns / 1e9:g} s"
 
 
-def own_side(policy_id: int, qos: Any, reader: bool) -> str:
+def qos_of(entity: Any) -> Any | None:
+    """An endpoint's QoS, or None when it is being deleted: Cyclone then calls a listener with None for the entity
+    (seen in the monitor's tests), or its get_qos fails."""
+    if entity is None:
+        return None
+    try:
+        return entity.get_qos()
+    except DDSException:
+        return None
+
+
+def own_side(policy_id: int, qos: Any | None, reader: bool) -> str:
     """What this endpoint asks (a reader) or offers (a writer) of the policy that failed a match, in words, and what
     the other side must then have done: the mismatch's cause as far as this side can tell (Cyclone's status names the
     policy, not the remote endpoint; ``automotive monitor --once`` shows both sides)."""
     verb, other = ("requests", "the writer offers") if reader else ("offers", "the reader requests")
     name = policy_name(policy_id)
+    if qos is None:  # the endpoint is being deleted: its QoS can no longer be had
+        return f"{other} another {name.lower().replace('_', ' ')}"
     try:
         if name == "OWNERSHIP":
             kind = "EXCLUSIVE" if Policy.Ownership.Exclusive in qos else "SHARED"
@@ -218,13 +231,13 @@ class StatusListener(Listener):
         policy = status.last_policy_id
         self._report("offered_incompatible_qos", status,
                      f"a reader was seen but does not match: incompatible QoS {policy_name(policy)} "
-                     f"({own_side(policy, writer.get_qos(), reader=False)})", logging.WARNING)
+                     f"({own_side(policy, qos_of(writer), reader=False)})", logging.WARNING)
 
     def on_requested_incompatible_qos(self, reader: Any, status: Any) -> None:
         policy = status.last_policy_id
         self._report("requested_incompatible_qos", status,
                      f"a writer was seen but does not match: incompatible QoS {policy_name(policy)} "
-                     f"({own_side(policy, reader.get_qos(), reader=True)})", logging.WARNING)
+                     f"({own_side(policy, qos_of(reader), reader=True)})", logging.WARNING)
 
     def on_sample_lost(self, reader: Any, status: Any) -> None:
         if self.exclusive:
