@@ -529,18 +529,22 @@ def system(module_domain_id: int) -> Iterator[dict[str, AppProcess]]:
         runner.stop_all()
 
 
-def run_monitor(domain: int, *args: str, cwd: Path = ROOT,
-                env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(program_command("monitor", "--domain", str(domain), "--wait", WAIT_S, *args), cwd=cwd,
+def run_monitor(domain: int, *args: str, cwd: Path = ROOT, env: dict[str, str] | None = None,
+                wait_s: str = WAIT_S) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(program_command("monitor", "--domain", str(domain), "--wait", wait_s, *args), cwd=cwd,
                           capture_output=True, text=True, timeout=120, env=env)
 
 
 def monitor_until(domain: int, check: Callable[[dict[str, Any]], bool], what: str,
                   timeout: float = TIMEOUT) -> dict[str, Any]:
-    """``automotive monitor --json`` again until its document passes ``check`` (bounded)."""
+    """``automotive monitor --json`` again until its document passes ``check`` (bounded). Each run's discovery window
+    twice the last one's (up to 16 s): on a busy machine a short window can end before the monitor's readers have
+    matched every writer, however often it is tried."""
     deadline = time.monotonic() + timeout
+    wait_s = float(WAIT_S)
     while True:
-        result = run_monitor(domain, "--json")
+        result = run_monitor(domain, "--json", wait_s=f"{wait_s:g}")
+        wait_s = min(2 * wait_s, 16.0)
         assert result.returncode == 0, result.stderr[-3000:]
         document: dict[str, Any] = json.loads(result.stdout)
         if check(document):
