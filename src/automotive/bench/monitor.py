@@ -25,7 +25,6 @@ import argparse
 import json
 import os
 import re
-import shutil
 import sys
 import time
 import urllib.error
@@ -37,7 +36,7 @@ import psutil
 
 from automotive.bus.cli import ArgumentParser, add_domain_option, add_log_dir_option, output_folder_problem
 from automotive.tools.launch.display import RUNNING_LINE
-from automotive.tools.support.children import Child, program_command, stop_all, work_folder
+from automotive.tools.support.children import Child, keep_outputs, program_command, stop_all, work_folder
 
 PROG = "automotive bench monitor"
 GOAL_CPU_PCT = 5.0
@@ -159,11 +158,7 @@ def measure(args: argparse.Namespace, work: Path) -> int:
     finally:
         stop_all(list(reversed(children)), timeout=30)
         if args.log_dir is not None:
-            args.log_dir.mkdir(parents=True, exist_ok=True)
-            for child in children:
-                (args.log_dir / f"{child.name}.log").write_text(child.output)
-            if log_dir.is_dir():
-                shutil.copytree(log_dir, args.log_dir / "logs", dirs_exist_ok=True)
+            keep_outputs(children, args.log_dir, log_dir)
     measured = phases[-1]
     if viewer.failures:
         print(f"the viewer's requests failed {viewer.failures} time(s); the last: {viewer.last_error}")

@@ -52,7 +52,7 @@ from automotive.bus.cli import (
 )
 from automotive.bus.ports import MAX_DOMAIN_ID
 from automotive.tools.launch.display import RUNNING_LINE
-from automotive.tools.support.children import Child, program_command, stop_all, work_folder
+from automotive.tools.support.children import Child, keep_outputs, program_command, stop_all, work_folder
 
 PROG = "automotive bench monitor-page"
 SIX_FLOWS = ("VisionTopic", "rt/LidarTopic", "SensorObjects", "PlatformStatus", "PlatformControl", "AlertTopic")
@@ -247,11 +247,7 @@ def measure(args: argparse.Namespace, work: Path) -> int:
     finally:
         stop_all(list(reversed(children)), timeout=30)
         if args.log_dir is not None:
-            args.log_dir.mkdir(parents=True, exist_ok=True)
-            for child in children:
-                (args.log_dir / f"{child.name}.log").write_text(child.output)
-            if (work / "logs").is_dir():
-                shutil.copytree(work / "logs", args.log_dir / "logs", dirs_exist_ok=True)
+            keep_outputs(children, args.log_dir, work / "logs")
     print(f"monitor_page_s={system_s:.2f}")
     return 0
 

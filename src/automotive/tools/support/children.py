@@ -22,6 +22,7 @@ from __future__ import annotations
 import os
 import queue
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -336,6 +337,16 @@ def stop_all(children: Sequence[Child], sig: int = signal.SIGTERM, timeout: floa
             child.send_signal(signal.SIGKILL)
             child.process.wait()
         child.join_output()
+
+
+def keep_outputs(children: Sequence[Child], folder: Path, log_folder: Path | None = None) -> None:
+    """Each child's output as ``folder/<name>.log``, and ``log_folder`` (a launcher's log folder) copied into
+    ``folder/logs``: what a benchmark's --log-dir keeps of a run."""
+    folder.mkdir(parents=True, exist_ok=True)
+    for child in children:
+        (folder / f"{child.name}.log").write_text(child.output)
+    if log_folder is not None and log_folder.is_dir():
+        shutil.copytree(log_folder, folder / "logs", dirs_exist_ok=True)
 
 
 Record = dict[str, Any]
