@@ -44,7 +44,7 @@ import pytest
 from apprunner import AppRunner
 from test_system import scene
 
-from automotive.bench.monitor_page import CROWD_SCRIPT, NoBrowser, chromium
+from automotive.bench.monitor_page import CROWD_SCRIPT, PROGRAMS, SIX_FLOWS, NoBrowser, chromium
 from automotive.tools.support.children import Child, program_command
 
 webdriver = pytest.importorskip("selenium.webdriver")
@@ -61,8 +61,6 @@ TIMEOUT = 90.0
 PAGE_S = 45.0
 CROWD_S = 45.0
 CROWD = 100
-SIX_FLOWS = ("VisionTopic", "rt/LidarTopic", "SensorObjects", "PlatformStatus", "PlatformControl", "AlertTopic")
-PROGRAMS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "monitor")
 PAGE_LINE = r"the monitor's page: (http://\S+)"
 URL_LINE = r"^automotive monitor: the page is on (http://\S+)$"
 SCENE_ROWS = 60  # one row every 100 ms: a 6 s cycle
