@@ -10,11 +10,12 @@
 
 Starts the system as `automotive launch` does (every application, camera included, shipped properties; background
 mode, hmi on the console) in a network namespace that this run creates and deletes, so its traffic is private
-(needs root). Every --interval seconds (10) psutil samples each application's RSS and CPU time; a progress line
-comes every minute. The camera subscriber and the HMI write their status records (--stats, through the launcher's
---stats-dir): frames, gaps and mismatches; the alerts shown to the driver and the alert source lost. They and the
-launcher's logs go to a temporary work folder, removed at the end (also on an error, Ctrl-C or SIGTERM), or to
---work DIR, a new or empty folder that is kept.
+(needs root). From when the camera subscriber and the HMI have opened their records (an application may still be
+starting when the launcher says "running"), every --interval seconds (10) psutil samples each application's RSS and
+CPU time; a progress line comes every minute. The camera subscriber and the HMI write their status records
+(--stats, through the launcher's --stats-dir): frames, gaps and mismatches; the alerts shown to the driver and the
+alert source lost. They and the launcher's logs go to a temporary work folder, removed at the end (also on an
+error, Ctrl-C or SIGTERM), or to --work DIR, a new or empty folder that is kept.
 
 At the end, per application: RSS (kB) at the end of the warm-up (--warmup, 5 min), at the end and its peak; the
 slope of a least-squares line through the samples after the warm-up, in kB per hour; the highest RSS held for 90 s
@@ -238,6 +239,21 @@ def sample_until(series: list[Series], args: argparse.Namespace, camera: Path, h
         time.sleep(max(0.0, min(next_sample, next_progress, duration_s) - (time.monotonic() - started)))
 
 
+def wait_for_records(series: list[Series], paths: Sequence[Path], timeout_s: float = 120.0) -> None:
+    """Until the applications that keep records have opened them: the launcher says "running" once every process is
+    started, and on a busy machine an application may still be importing its modules then. The clock of the run
+    starts after, so that a short run is not over before the camera subscriber and the HMI are up."""
+    deadline = time.monotonic() + timeout_s
+    while not all(path.exists() for path in paths):
+        ended = [one.name for one in series if not one.process.is_running()]
+        if ended or time.monotonic() > deadline:
+            missing = ", ".join(path.name for path in paths if not path.exists())
+            because = f"{', '.join(ended)} ended" if ended else f"not within {timeout_s:g} s"
+            raise SystemExit(f"{PROG}: {missing} not opened by the applications ({because}); see the logs in "
+                             f"{paths[0].parent / 'logs'}")
+        time.sleep(0.1)  # the applications create the files: nothing to wait on but the folder
+
+
 def minutes_to_judge(warmup_min: float) -> float:
     """The shortest run the goal judges: the warm-up, then the 10 minutes after it and the last 10 minutes, whole and
     one after the other (a slope fitted over less, or levels compared over parts of windows, say nothing of hours)."""
@@ -375,6 +391,7 @@ def run(args: argparse.Namespace, work: Path) -> int:
     try:
         with system_in_namespace(PROG, f"bench-soak-{os.getpid()}", args.domain, work,
                                  ["--stats-dir", f"camera_sub:{work}", "--stats-dir", f"hmi:{work}"], env) as series:
+            wait_for_records(series, (camera, hmi))
             kept = f"; work folder {work}" if args.work is not None else ""
             print(f"sampling {len(series) - 1} applications and the launcher every {args.interval:g} s for "
                   f"{args.minutes:g} min (warm-up {args.warmup:g} min){kept}", flush=True)
