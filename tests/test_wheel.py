@@ -35,7 +35,10 @@ class Installation:
         self.bin = venv / "bin"
         self.wheel = wheel
         self.home = home  # an empty folder: the working directory of every command
-        self.env = {key: value for key, value in os.environ.items() if key not in ("PYTHONPATH", "VIRTUAL_ENV")}
+        # As a user's Python: the first import of a module writes its bytecode (the install skips byte-compiling; a
+        # PYTHONDONTWRITEBYTECODE of the tests' environment would make every command compile every module again).
+        self.env = {key: value for key, value in os.environ.items()
+                    if key not in ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONDONTWRITEBYTECODE")}
         self.env["PATH"] = os.pathsep.join([str(self.bin), *(part for part in self.env.get("PATH", "").split(
             os.pathsep) if Path(part).resolve() != (ROOT / ".venv" / "bin").resolve())])
 
@@ -64,7 +67,7 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> Installation:
     venv = work / "venv"
     must([sys.executable, "-m", "venv", str(venv)])
     # --no-compile: byte-compiling every dependency took half of the install (12 of 22 s quiet); what the tests run
-    # compiles on first import instead
+    # is compiled on its first import instead (Installation.env)
     must([str(venv / "bin" / "python"), "-m", "pip", "install", "-q", "--no-compile", "--no-index", "--find-links",
           str(WHEELHOUSE), str(wheel)])
     home = work / "empty"

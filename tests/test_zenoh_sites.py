@@ -303,7 +303,10 @@ def test_memory_stays_bounded_while_the_link_is_down(sites: Sites) -> None:
 
     sites.mend()  # the link is back: B reconnects, frames flow again
     bridge_a.wait_for(r"link: connected to peer", timeout=30, count=2)
-    bridge_b.wait_for_more(r"from link: CameraImageData=[1-9]", timeout=60)
+    try:
+        bridge_b.wait_for_more(r"from link: CameraImageData=[1-9]", timeout=60)
+    except AssertionError as error:  # the sending side's account too
+        raise AssertionError(f"{error}\n{bridge_a.name}:\n{bridge_a.output[-4000:]}") from None
 
 
 def test_two_bridges_on_one_site_make_no_loop(sites: Sites) -> None:
