@@ -47,20 +47,23 @@ import re
 import typing
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy
 from cyclonedds.core import InstanceState
 from cyclonedds.idl import IdlEnum, IdlStruct, IdlUnion
 from cyclonedds.idl import types as idl_types
-from lark import Lark, Token, Tree
-from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedInput, UnexpectedToken
 
 from automotive.bus.badsamples import BadSample
 from automotive.bus.checkedreader import CheckedReader, ended_instance
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import Properties
 from automotive.cyclone.bounds import member_types
+
+if TYPE_CHECKING:  # Lark itself is imported where an expression is parsed or bound: few programs are given a filter,
+    # and importing it is about 40 ms of every program's start
+    from lark import Lark, Token, Tree
+    from lark.exceptions import UnexpectedInput
 
 __all__ = ["ContentFilter", "FilterError", "FilteredReader", "Predicate", "SeenInstances", "TopicFilters", "evaluate"]
 
@@ -106,6 +109,8 @@ PARAMETER: /%[0-9]{1,2}/
 def _parser() -> Lark:
     """The grammar's parser, built on first use: building it is most of this module's import time (about 0.1 s),
     which every program would pay at start, though few are given a filter."""
+    from lark import Lark
+
     return Lark(_GRAMMAR, start=["condition", "literal"], parser="lalr", maybe_placeholders=False)
 
 
@@ -259,6 +264,9 @@ class ContentFilter:
             raise FilterError("the expression is empty", 1)
         if len(parameters) > MAX_PARAMETERS:
             raise FilterError(f"{len(parameters)} parameters given, at most {MAX_PARAMETERS} (%0..%99)")
+        from lark import Token
+        from lark.exceptions import UnexpectedInput
+
         try:
             tree = _parser().parse(expression, start="condition")
         except UnexpectedInput as error:
@@ -286,6 +294,8 @@ class ContentFilter:
 
 def _check_depth(tree: Tree[Token]) -> None:
     """Refuse a tree deeper than MAX_DEPTH conditions; walked with a list, as recursion is what it guards against."""
+    from lark import Tree
+
     pending: list[tuple[Tree[Token], int]] = [(tree, 0)]
     while pending:
         node, depth = pending.pop()
@@ -302,6 +312,8 @@ def _position(token: Token) -> int:
 
 
 def _syntax_error(expression: str, error: UnexpectedInput) -> FilterError:
+    from lark.exceptions import UnexpectedCharacters, UnexpectedEOF, UnexpectedToken
+
     if isinstance(error, UnexpectedEOF):
         return FilterError("the expression ends too early", len(expression) + 1)
     position = int(getattr(error, "pos_in_stream", 0) or 0) + 1
@@ -319,6 +331,9 @@ def _syntax_error(expression: str, error: UnexpectedInput) -> FilterError:
 
 def _parse_literal(text: str) -> Token | None:
     """A parameter's text as a literal token, or None when it is none (then it stands for that string)."""
+    from lark import Token
+    from lark.exceptions import UnexpectedInput
+
     try:
         tree = _parser().parse(text, start="literal")
     except UnexpectedInput:
@@ -349,6 +364,8 @@ class _Binder:
 
     # -- conditions
     def condition(self, node: Tree[Token] | Token) -> Condition:
+        from lark import Tree
+
         if not isinstance(node, Tree):  # pragma: no cover - the grammar makes every condition a tree
             raise FilterError(f"{node!r} is not a condition", _position(node))
         rule = node.data
@@ -395,6 +412,8 @@ class _Binder:
         raise FilterError("a member alone is not a condition (compare it: member = value)", position)
 
     def compare(self, node: Tree[Token]) -> Condition:
+        from lark import Tree
+
         left_node, relop, right_node = node.children
         left, right = self.operand(left_node), self.operand(right_node)
         op_text = str(relop)
@@ -454,6 +473,8 @@ class _Binder:
 
     # -- operands
     def operand(self, node: Tree[Token] | Token) -> _Operand:
+        from lark import Tree
+
         if isinstance(node, Tree):  # a member (or an enumerator: a bare name that is no member)
             return self.member(node)
         position = _position(node)
@@ -551,6 +572,8 @@ class _Binder:
 
 
 def _steps_of(node: Tree[Token] | Token) -> list[str | int]:
+    from lark import Token, Tree
+
     if not isinstance(node, Tree):
         return []
     return [int(child) if child.type == "INDEX" else str(child) for child in node.children if isinstance(child, Token)]
@@ -565,6 +588,8 @@ def _member_text(steps: list[str | int]) -> str:
 
 def _first_position(node: Tree[Token]) -> int:
     """The position of the node's first token: its leftmost leaf (a loop: the tree may be deep)."""
+    from lark import Token
+
     while node.children:
         first = node.children[0]
         if isinstance(first, Token):
