@@ -625,6 +625,27 @@ def test_views_are_checked_like_dataclasses(member: str, index: int, component: 
     assert validation.check(codec_for(VisionSensor).decode(good, views=True)) is None
 
 
+@pytest.mark.parametrize("words,bad", [
+    ({"count": -1, "ratio": 1.5, "range": 2.0}, None),  # -1 reads as a NaN float32 word: only a look, not a problem
+    ({"count": 0x7F800000, "ratio": 0.0, "range": -0.0}, None),  # an integer with the bits of +inf
+    ({"count": 3, "ratio": math.inf, "range": 2.0}, "ratio"),
+    ({"count": 3, "ratio": 1.0, "range": math.nan}, "range"),  # a float64 NaN: its high word is a float32 NaN
+    ({"count": 3, "ratio": 1.0, "range": 1e308}, None),  # a float64 far beyond float32's range, finite
+])
+def test_struct_arrays_are_checked_in_one_sum_without_false_problems(words: dict[str, float], bad: str | None) -> None:
+    """The one-sum look at a structured array (its words read as float32) never misses a non-finite float field and
+    never reports an integer or a large float64 whose words merely look non-finite."""
+    from automotive.bus import validation
+
+    dtype = np.dtype([("count", "<i4"), ("ratio", "<f4"), ("range", "<f8"), ("pad", "<i4")])
+    values = np.zeros(3, dtype)
+    for name, value in words.items():
+        values[name][1] = value
+    problem = validation._check_struct_array(values, "items")
+    assert (problem.member if problem else None) == (None if bad is None else f"items[1].{bad}")
+    assert validation._check_struct_array(values[::2], "items") is None  # a strided view: field by field
+
+
 def test_checked_reader_gives_views(bus: Databus) -> None:
     writer = bus.writer("VisionTopic", VisionSensor, "Vision")
     reader = bus.reader("VisionTopic", VisionSensor, "Vision")

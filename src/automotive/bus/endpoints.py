@@ -36,6 +36,20 @@ from automotive.cyclone import bounds, codec_hook, hostonly
 T = TypeVar("T")
 
 
+class NamedTopic(Topic[T]):  # type: ignore[type-var]  # generated types: unchecked
+    """A Topic that keeps its name: Cyclone DDS Python's ``name`` and ``get_name()`` ask the C library into a fresh
+    256-byte buffer at each call, and the readers and writers name their topic for every sample they count."""
+
+    def __init__(self, participant: DomainParticipant, name: str, data_type: type[T], **kwargs: Any):
+        super().__init__(participant, name, data_type, **kwargs)
+        self._name = name
+
+    def get_name(self, max_size: int = 256) -> str:
+        return self._name
+
+    name = property(get_name, doc="the topic's name")  # type: ignore[assignment]
+
+
 class CheckedWriter(DataWriter[T]):
     """A DataWriter that refuses, with a clear BoundError, a sample over its IDL bounds before serializing it."""
 
@@ -167,7 +181,7 @@ class Databus:
         topic = self._topics.get(name)
         if topic is None:
             with refused_as_config_error(f"topic '{name}'"):
-                topic = Topic(self.participant, name, data_type)  # type: ignore[type-var]  # generated: unchecked
+                topic = NamedTopic(self.participant, name, data_type)
             self._topics[name] = topic
         elif topic.data_type is not data_type:
             raise ConfigError(f"topic '{name}' is used with two types: {topic.data_type.__name__} "
