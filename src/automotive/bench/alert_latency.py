@@ -55,7 +55,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import shutil
 import statistics
 import sys
@@ -66,7 +65,7 @@ from pathlib import Path
 from typing import Any
 
 from automotive import config
-from automotive.bench.ddsperf import DDSPERF_URI
+from automotive.bench.ddsperf import OneWay, ddsperf_one_way
 from automotive.bus import stats
 from automotive.bus.cli import (
     ArgumentParser,
@@ -105,9 +104,6 @@ BUSY_RATIO_GOAL, BUSY_P99_GOAL_MS = 5.0, 5.0
 SPINNER = "while True: pass"  # --busy: one core's worth of work in another process
 C_HOPS = {"vision -> fusion": "vision", "fusion -> collision": "list", "collision -> hmi": "alert",
           "command hop": "command"}
-# ddsperf's lines: "... size 300 mean 157.210us min 47.028us 50% 77.071us 90% 214.794us 99% 1872.328us max ..."
-DDSPERF_LINE = re.compile(r"size (\d+) mean [\d.]+us min [\d.]+us 50% ([\d.]+)us 90% [\d.]+us 99% ([\d.]+)us "
-                          r"max ([\d.]+)us cnt (\d+)")
 
 
 def vision_csv(path: Path, objects: int) -> None:
@@ -321,32 +317,6 @@ def serialized_sizes(objects: int, list_objects: int) -> dict[str, int]:
     return sizes
 
 
-def ddsperf_one_way(size: int, seconds: int, domain: int, rate_hz: int,
-                    prefix: list[str] | None = None) -> tuple[float, float, float] | None:
-    """C one-way latency (ms: p50, p99, max) at ``size`` bytes, ``rate_hz`` round trips a second: ddsperf's round
-    trip / 2; None without ddsperf. ``prefix``: what runs both ddsperf processes (``chrt --fifo 10``)."""
-    ddsperf = shutil.which("ddsperf")
-    if ddsperf is None:
-        return None
-    env = dict(os.environ, CYCLONEDDS_URI=DDSPERF_URI)
-    prefix = prefix or []
-    pong = Child("ddsperf-pong", [*prefix, ddsperf, "-i", str(domain), "-D", str(seconds + 5), "pong", "waitset"],
-                 env=env)
-    ping = Child("ddsperf-ping", [*prefix, ddsperf, "-X", "-i", str(domain), "-D", str(seconds + 1), "ping",
-                                  f"{rate_hz}Hz", "size", str(size), "waitset"], env=env)
-    try:
-        ping.wait_exit(timeout=seconds + 30)
-    finally:
-        stop_all([ping, pong], timeout=5)
-    rows = [match for line in ping.lines if (match := DDSPERF_LINE.search(line)) and int(match[5]) > 0]
-    if not rows:
-        return None
-    p50 = statistics.median(float(row[2]) for row in rows)
-    p99 = statistics.median(float(row[3]) for row in rows)
-    worst = max(float(row[4]) for row in rows)
-    return p50 / 2000, p99 / 2000, worst / 2000
-
-
 def percentiles(values: list[float]) -> tuple[float, float, float]:
     """p50, p99 and max (ms); NaN when there is no value."""
     p50, p99 = percentile(values, 0.5), percentile(values, 0.99)
@@ -451,7 +421,7 @@ def report(args: argparse.Namespace, sensor_counts: list[int], object_counts: li
             result.sizes = serialized_sizes(objects, max(1, round(result.list_objects)))
             results.append(result)
 
-    c_cache: dict[int, tuple[float, float, float] | None] = {}
+    c_cache: dict[int, OneWay | None] = {}
     ratio = float("nan")
     alert_p99 = float("nan")
     print(f"sensor-to-alert latency, sensor fusion in {args.mode} mode, loopback, {os.cpu_count()} CPU(s), "
@@ -479,9 +449,10 @@ def report(args: argparse.Namespace, sensor_counts: list[int], object_counts: li
                 c = c_cache[size]
                 if c is not None:
                     if hop != "command hop":
-                        c_chain_p99 += c[1]
-                    worst_hop = max(worst_hop, p99 / c[1])
-                    c_text = f"{size:>7} {c[0]:>7.3f} {c[1]:>7.3f} {p50 / c[0]:>6.1f} {p99 / c[1]:>6.1f}"
+                        c_chain_p99 += c.p99_ms
+                    worst_hop = max(worst_hop, p99 / c.p99_ms)
+                    c_text = (f"{size:>7} {c.p50_ms:>7.3f} {c.p99_ms:>7.3f} {p50 / c.p50_ms:>6.1f} "
+                              f"{p99 / c.p99_ms:>6.1f}")
                 else:
                     c_text = f"{size:>7} {'(no ddsperf)':>15}"
             elif hop == "alert total" and c_chain_p99 > 0:

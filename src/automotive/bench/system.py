@@ -32,18 +32,20 @@ received and what the camera and the LiDAR wrote on DDS (their exit lines), and 
 
 The reference, measured in the same run after the system stopped (--reference-seconds, 20; 0: none): Cyclone's C
 tool ddsperf carrying the camera's serialized frame (4 MiB) at 30 Hz over loopback (ping/pong, round trip / 2), and
-the camera's p50 and p99 over it (camera_vs_c_p50, camera_vs_c_p99): machines of one kind differ, so a figure is
-judged beside C measured on the same machine at the same time.
+the camera's p50 and p99 over it (camera_vs_c_p50, camera_vs_c_p99); and the CPU of ddsperf's two processes while
+they do it, and the whole system's CPU over theirs (system_vs_c_cpu): machines of one kind differ (the same commit
+measured 9.7 % on one and 17.1 % on another), so a figure is judged beside C measured on the same machine at the same
+time.
 
 The work folder (the records, the launcher's logs) is temporary, removed at the end (also on an error, Ctrl-C or
 SIGTERM), or --work DIR, a new or empty folder that is kept.
 
-Goals (issue 32, the shipped defaults, over 60 s): the whole system (the sum over the eight applications) at most
-12 % of one core; the camera's p50 at most 0.5 ms and p99 at most 2 ms at 30 frames/s (within 1), without a gap or a
+Goals (issues 32 and 37, the shipped defaults, over 60 s): the whole system (the sum over the eight applications) at
+most 8 % of one core; the camera's p50 at most 0.5 ms and p99 at most 2 ms at 30 frames/s (within 1), without a gap or a
 mismatch; the LiDAR's hop p50 at most the camera's p50 (to the microsecond, as printed). A run shorter than 60 s
 prints its figures and "too short to judge" for each goal. Before the last line come camera_p50_ms=, camera_p99_ms=,
-c_one_way_p50_ms=, c_one_way_p99_ms=, camera_vs_c_p50= and camera_vs_c_p99= ("-" for what was not measured; with
---json they are in the JSON line: c_one_way_ms, camera_vs_c). The
+c_one_way_p50_ms=, c_one_way_p99_ms=, camera_vs_c_p50=, camera_vs_c_p99= and system_vs_c_cpu= ("-" for what was not
+measured; with --json they are in the JSON line: c_one_way_ms, camera_vs_c, c_cpu_pct, system_vs_c_cpu). The
 last line is system_cpu_pct=<the sum over the eight applications, % of one core>; the exit code is 0 once it is
 printed, whatever the verdicts.
 """
@@ -62,9 +64,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from automotive.bench.alert_latency import ddsperf_one_way
 from automotive.bench.dds_readers import READY_LINE
-from automotive.bench.ddsperf import DDSPERF_URI
+from automotive.bench.ddsperf import DDSPERF_URI, OneWay, ddsperf_one_way
 from automotive.bench.soak import (
     LAUNCHER,
     Series,
@@ -89,7 +90,7 @@ SHARED_FLOW_APPS = ("lidar", "sensor_fusion", "camera_pub", "camera_sub")
 CAMERA_RECORDS, LIDAR_RECORDS = "camera_sub.jsonl", "sensor_fusion.jsonl"
 PROGRESS_S = 15.0
 GOAL_SECONDS = 60.0
-GOAL_SYSTEM_CPU_PCT = 12.0
+GOAL_SYSTEM_CPU_PCT = 8.0  # issue 37 (issue 32: 12)
 GOAL_CAMERA_P50_MS = 0.5
 GOAL_CAMERA_P99_MS = 2.0
 GOAL_CAMERA_RATE = 30.0  # frames/s (camera_pub's config.pubInterval=33 ms: 30.3)
@@ -247,14 +248,23 @@ class Figures:
     ended: dict[str, str] = field(default_factory=dict)  # application -> how it ended during the run
     dds_readers: str | None = None  # with --dds-readers: what the foreign readers received (their last line)
     written: dict[str, str] = field(default_factory=dict)  # writer -> its exit line (shared memory and DDS counts)
-    reference: tuple[float, float, float] | None = None  # ddsperf's one-way p50, p99, max (ms) at the camera's size
+    reference: OneWay | None = None  # ddsperf at the camera's size and rate
 
     def ratios(self) -> tuple[float | None, float | None]:
         """The camera's p50 and p99 over the C reference's."""
         camera, reference = self.camera, self.reference
-        if reference is None or camera.p50_ms is None or camera.p99_ms is None or not reference[0] or not reference[1]:
+        if (reference is None or camera.p50_ms is None or camera.p99_ms is None or not reference.p50_ms
+                or not reference.p99_ms):
             return None, None
-        return camera.p50_ms / reference[0], camera.p99_ms / reference[1]
+        return camera.p50_ms / reference.p50_ms, camera.p99_ms / reference.p99_ms
+
+    @property
+    def cpu_vs_c(self) -> float | None:
+        """The whole system's CPU over the C reference's (its two processes together)."""
+        reference = self.reference
+        if reference is None or not reference.cpu_pct:
+            return None
+        return self.system_cpu_pct / reference.cpu_pct
 
     @property
     def system_cpu_pct(self) -> float:
@@ -311,9 +321,11 @@ class Figures:
                 "ended": self.ended,
                 "dds_readers": self.dds_readers, "written": self.written,
                 "c_one_way_ms": None if self.reference is None else {
-                    "p50": rounded(self.reference[0]), "p99": rounded(self.reference[1]),
-                    "max": rounded(self.reference[2])},
+                    "p50": rounded(self.reference.p50_ms), "p99": rounded(self.reference.p99_ms),
+                    "max": rounded(self.reference.max_ms)},
                 "camera_vs_c": dict(zip(("p50", "p99"), (rounded(ratio, 2) for ratio in self.ratios()))),
+                "c_cpu_pct": None if self.reference is None else rounded(self.reference.cpu_pct, 2),
+                "system_vs_c_cpu": rounded(self.cpu_vs_c, 2),
                 "goals": {goal.name: None if goal.met is None else "met" if goal.met else "not-met"
                           for goal in self.goals(judge)}}
 
@@ -340,11 +352,15 @@ def report(figures: Figures, as_json: bool) -> int:
             print(f"foreign DDS readers on the host: {figures.dds_readers}")
         for writer, line in figures.written.items():
             print(f"{writer}: {line}")
-        if figures.reference is not None:
+        reference = figures.reference
+        if reference is not None:
             p50, p99 = figures.ratios()
             print(f"reference: ddsperf (C) one way at {camera_frame_bytes():,} bytes, {REFERENCE_RATE_HZ} Hz, "
-                  f"loopback: p50 {figures.reference[0]:.3f} / p99 {figures.reference[1]:.3f} / max "
-                  f"{figures.reference[2]:.3f} ms; the camera over it: p50 {_ratio(p50)}, p99 {_ratio(p99)}")
+                  f"loopback: p50 {reference.p50_ms:.3f} / p99 {reference.p99_ms:.3f} / max "
+                  f"{reference.max_ms:.3f} ms; the camera over it: p50 {_ratio(p50)}, p99 {_ratio(p99)}")
+            if reference.cpu_pct is not None:
+                print(f"reference: ddsperf's ping and pong used {reference.cpu_pct:.2f} % of one core; the whole "
+                      f"system over it: {_ratio(figures.cpu_vs_c)}")
         for goal in figures.goals(judge):
             print(goal.line())
         if not judge:
@@ -353,11 +369,12 @@ def report(figures: Figures, as_json: bool) -> int:
         p50, p99 = figures.ratios()
         reference = figures.reference
         for name, value in (("camera_p50_ms", figures.camera.p50_ms), ("camera_p99_ms", figures.camera.p99_ms),
-                            ("c_one_way_p50_ms", reference[0] if reference else None),
-                            ("c_one_way_p99_ms", reference[1] if reference else None)):
+                            ("c_one_way_p50_ms", reference.p50_ms if reference else None),
+                            ("c_one_way_p99_ms", reference.p99_ms if reference else None)):
             print(f"{name}={'-' if value is None else f'{value:.3f}'}")
         print(f"camera_vs_c_p50={_ratio(p50)}")
         print(f"camera_vs_c_p99={_ratio(p99)}")
+        print(f"system_vs_c_cpu={_ratio(figures.cpu_vs_c)}")
     print(f"system_cpu_pct={figures.system_cpu_pct:.2f}")
     return 0
 
