@@ -92,6 +92,7 @@ def setup_logging(name: str, verbose: bool = False, on_closed: Callable[[], None
     once); ``on_closed`` is called once if stdout's reader goes away."""
     if hasattr(sys.stdout, "reconfigure"):
         sys.stdout.reconfigure(line_buffering=True)
+    skip_unused_record_fields()
     handler = ClosedPipeHandler(sys.stdout, on_closed)
     handler.setFormatter(LevelFormatter())
     log = logging.getLogger(name)
@@ -99,6 +100,16 @@ def setup_logging(name: str, verbose: bool = False, on_closed: Callable[[], None
     log.setLevel(level_from(verbose))
     log.propagate = False
     return log
+
+
+def skip_unused_record_fields() -> None:
+    """Leave out of every log record what no line of ours shows: the caller's file and line (a walk up the stack per
+    record), the thread's and the process's names. The logging HOWTO's "Optimization" settings: a DEBUG line per
+    sample costs a third less (29 to 20 us here)."""
+    logging._srcfile = None  # type: ignore[attr-defined]  # documented in the HOWTO, private by name only
+    logging.logThreads = False
+    logging.logProcesses = False
+    logging.logMultiprocessing = False
 
 
 def without_debug_record(text: str) -> str:
