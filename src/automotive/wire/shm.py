@@ -546,7 +546,7 @@ class SharedReader:
             self.notifier = memory.consumed.notifier_builder().create()
         self._waking: threading.Thread | None = None
         self._stop = threading.Event()
-        self._last_sequence: dict[str, int] = {}  # publisher -> the sequence of its last sample received
+        self._last_sequence: dict[int, int] = {}  # publisher id -> the sequence of its last sample received
 
     def wake(self, guard: GuardCondition) -> None:
         """Set ``guard`` whenever samples were sent or a publisher leaves, from a thread of its own."""
@@ -576,7 +576,8 @@ class SharedReader:
                     break
                 held.append(sample)
                 header = sample.user_header().contents
-                self._acknowledge_skipped(repr(sample.header.publisher_id), int(header.sequence))
+                # the id's value: the id object itself is new at each call, unhashable, and its repr is its address
+                self._acknowledge_skipped(sample.header.publisher_id.value, int(header.sequence))
                 payload = sample.payload()
                 arrays.append((ctypes.c_char * payload.len()).from_address(payload.as_ptr()))
                 # read-only: a write through the view (or a numpy array made from it) raises instead of crashing
@@ -587,7 +588,7 @@ class SharedReader:
             raise
         return LentShared(samples, lambda: self._release(samples, views, arrays, held))
 
-    def _acknowledge_skipped(self, publisher: str, sequence: int) -> None:
+    def _acknowledge_skipped(self, publisher: int, sequence: int) -> None:
         """Acknowledge the samples of ``publisher`` before ``sequence`` that this subscriber never got (overwritten in
         its queue: keep-last, or a queue that overflowed), as a DDS reader acknowledges what its history replaced: a
         reliable publisher's flow control then never waits for them."""
