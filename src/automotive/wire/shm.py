@@ -65,6 +65,9 @@ BORROWED = 2  # samples a subscriber holds at once (it releases each after using
 ACK_IDS = 4096  # "consumed" event ids are sequence numbers modulo this; a window never comes near it
 SAMPLE_SENT, LEAVING = 0, 1  # event ids of the publisher's notifications
 WAIT_SLICE_S = 0.2  # longest single wait, so that a stop signal is noticed promptly
+# How often a subscriber looks up which participants write through shared memory, for its latencies' label: a lookup
+# asks Cyclone for the reader's matched writers, a call that at every take came before the application had the sample.
+WRITER_LOOK_S = 1.0
 USER_DATA_TAG = b"automotive.shm:"
 
 _log = logging.getLogger(__name__)
@@ -297,13 +300,19 @@ class LocalWriters:
         self.key = key
         self._known: dict[int, bool] = {}  # publication handle (unsigned) -> of our locality
         self._matched: tuple[int, ...] = ()  # the matched writers when shared_writer last looked
+        self._next_look = 0.0  # time.monotonic() of shared_writer's next look
         self._shared_writer = "unknown"
         self._names: WriterNames | None = None
 
     def shared_writer(self) -> str:
         """The participant name of the writer(s) of this locality (those that send through shared memory), for the
         latencies of the samples that came that way: names joined by '+' when several; "unknown" when none is known.
-        Looked up again only when the matched writers change."""
+        Looked at once every WRITER_LOOK_S once known (at every call until then: the first samples may come through
+        shared memory before DDS matched their writer), and looked up again only when the matched writers changed."""
+        now = time.monotonic()
+        if now < self._next_look and self._shared_writer != "unknown":
+            return self._shared_writer
+        self._next_look = now + WRITER_LOOK_S
         try:
             handles = tuple(self.reader.get_matched_publications())
         except Exception:  # the reader is being deleted
