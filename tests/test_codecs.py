@@ -644,6 +644,9 @@ def test_struct_arrays_are_checked_in_one_sum_without_false_problems(words: dict
     problem = validation._check_struct_array(values, "items")
     assert (problem.member if problem else None) == (None if bad is None else f"items[1].{bad}")
     assert validation._check_struct_array(values[::2], "items") is None  # a strided view: field by field
+    # A big-endian writer's sample, viewed in its own byte order: the same verdict (its words are other numbers).
+    swapped = validation._check_struct_array(values.astype(dtype.newbyteorder(">")), "items")
+    assert (swapped.member if swapped else None) == (None if bad is None else f"items[1].{bad}")
 
 
 def test_checked_reader_gives_views(bus: Databus) -> None:

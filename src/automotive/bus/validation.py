@@ -113,11 +113,12 @@ def _float_fields(dtype: np.dtype[Any]) -> tuple[str, ...]:
 def _check_struct_array(values: np.ndarray[Any, Any], path: str) -> BadSample | None:
     """The float fields of a structured array (numpy views of a sequence of fixed-size structs), all at once."""
     fields = _float_fields(values.dtype)
-    if fields and values.dtype.itemsize % 4 == 0 and values.flags.c_contiguous:
+    if fields and values.dtype.isnative and values.dtype.itemsize % 4 == 0 and values.flags.c_contiguous:
         # One sum over the whole array read as float32 words instead of one per field (a list of 2 vision objects:
         # 4 us instead of 19). A non-finite float32 or float64 field has every exponent bit of a float32 word set
         # (a float64's high word), so a finite sum proves every float field finite; other words (integers, a
-        # float64's low word) may look non-finite: only then is each field looked at, as below.
+        # float64's low word) may look non-finite: only then is each field looked at, as below. Not for a sample of
+        # the other byte order (a big-endian writer's): its words read this way are other numbers.
         if math.isfinite(values.view(np.float32).sum(dtype=np.float64)):
             return None
     for name in fields:
