@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import shutil
@@ -53,7 +54,7 @@ def ddsperf_one_way(size: int, seconds: int, domain: int, rate_hz: int,
             before, start = ping.cpu_seconds() + pong.cpu_seconds(), time.monotonic()
             time.sleep(window_s)
             used = ping.cpu_seconds() + pong.cpu_seconds() - before
-            if used == used:  # NaN when either ended early
+            if not math.isnan(used):  # NaN: one of them ended early
                 cpu_pct = 100 * used / (time.monotonic() - start)
         ping.wait_exit(timeout=seconds + 30)
     finally:
