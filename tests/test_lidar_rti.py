@@ -64,6 +64,7 @@ def test_rti_shapes_demo_writer_draws_a_sphere_until_it_leaves(apps, domain_id: 
                                                                bus: Databus, rti_xml: Path) -> None:
     clouds = Clouds(bus)
     lidar = apps.start("lidar", "--domain", str(domain_id), "-D", "config.noise=0")
+    lidar.wait_for(r"frame \d+:")  # up, its Circle reader made: the peer's 15 s below are discovery's alone
     with RtiPeer(domain_id, writers={"Circle": "ShapesDemoWriter"}, xml=rti_xml) as peer:
         peer.wait_for_readers("Circle")
         lidar.wait_for(r"\[Circle\] reader matched a writer")  # both sides matched: the sample is not dropped
@@ -86,6 +87,7 @@ def test_rti_dispose_removes_the_sphere(apps, domain_id: int, bus: Databus) -> N
     # The peer's own writer profile serializes the key with its disposals, which Cyclone understands.
     clouds = Clouds(bus)
     lidar = apps.start("lidar", "--domain", str(domain_id), "-D", "config.noise=0")
+    lidar.wait_for(r"frame \d+:")  # up, its Circle reader made: the peer's 15 s below are discovery's alone
     with RtiPeer(domain_id, writers=["Circle"]) as peer:
         peer.wait_for_readers("Circle")
         lidar.wait_for(r"\[Circle\] reader matched a writer")
