@@ -112,7 +112,8 @@ def test_rti_dispose_removes_the_sphere(apps, domain_id: int, bus: Databus) -> N
 def test_our_shapes_publisher_reaches_a_shapes_demo_reader(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
     # BestEffortReader: RTI's default reader QoS apart from history (best effort; XCDR1 only, as RTI Connext 6).
     with RtiPeer(domain_id, readers={"Circle": "BestEffortReader"}) as peer:
-        apps.start("shapes", "publish", "--color", "PURPLE", "--shapesize", "45", "--domain", str(domain_id))
+        shapes = apps.start("shapes", "publish", "--color", "PURPLE", "--shapesize", "45", "--domain", str(domain_id))
+        shapes.wait_for(r"publishing PURPLE Circle")  # up: the peer's 15 s below are discovery's alone
         peer.wait_for_writers("Circle")
         samples = peer.take_until("Circle", 5, accept=lambda s: s["color"] == "PURPLE")
     assert len(samples) >= 5  # the last take may bring more than the fifth
