@@ -34,6 +34,7 @@ import argparse
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -182,6 +183,10 @@ class Route:
     remote_writers: dict[str, str] = field(default_factory=dict)
     last_sequence: dict[str, int] = field(default_factory=dict)
     lock: threading.Lock = field(default_factory=threading.Lock)
+    # Held around each put: a new session's publisher replaces the old one only between puts.
+    send_lock: threading.Lock = field(default_factory=threading.Lock)
+    # Transient-local flows: what the publication cache holds (payload, attachment), put again into a new session's.
+    recent: deque[tuple[bytes, bytes]] | None = None
 
     @property
     def topic(self) -> str:
@@ -238,7 +243,13 @@ class SiteBridge:
         self.zid = ""
         self.peers: dict[str, str] = {}  # zid -> router/peer, of the open transports
         self.threads: list[threading.Thread] = []
-        self._entities: list[Any] = []  # Zenoh subscribers and listeners kept alive until close
+        self._entities: list[Any] = []  # Zenoh subscribers and listeners of the session, kept alive until it closes
+        # The session is replaced whole (see _renew_session); callbacks of an older one are ignored by generation.
+        self._session_lock = threading.Lock()
+        self._generation = 0
+        self._renewal = threading.Event()
+        self._stop = threading.Event()
+        self.renewals = 0
         self._sites_seen: dict[str, set[str]] = {}  # topic -> other bridges' token keys of this site's name
 
     @staticmethod
@@ -250,23 +261,43 @@ class SiteBridge:
     # -- set-up ----------------------------------------------------------------------------------------------
     def open(self) -> None:
         self.zenoh_log.start([handler for handler in self.log.handlers if hasattr(handler, "setStream")])
-        try:
-            self.session = zenoh.open(zenoh_config(self.settings))
-        except zenoh.ZError as error:
-            raise ConfigError(f"{self.settings.source}: cannot open the Zenoh link ({self.settings.describe()}): "
-                              f"{str(error).split(' at /')[0]}") from None
-        session = self.session
-        self.zid = str(session.zid())
-        self.log.info("link: %s; Zenoh id %s", self.settings.describe(), self.zid)
-        self._entities.append(session.info.declare_transport_events_listener(self._on_transport, history=True))
         for route in self.routes.values():
             self._open_route(route)
-        self._entities.append(session.liveliness().declare_subscriber(
-            f"{writers_prefix(self.settings.scope)}/**", self._on_token, history=True))
+        try:
+            self._start_session()
+        except zenoh.ZError as error:
+            raise ConfigError(f"{self.settings.source}: cannot open the Zenoh link ({self.settings.describe()}): "
+                              f"{_zenoh_error(error)}") from None
+        for route in self.routes.values():
+            self._start_threads(route)
+        if self.settings.connect:
+            thread = threading.Thread(target=self._renew_loop, name="zenoh-renewal", daemon=True)
+            thread.start()
+            self.threads.append(thread)
+
+    def _start_session(self) -> None:
+        """Open a Zenoh session and declare on it what the bridge needs: its transport events, every route's
+        publisher and subscriber, the other sites' liveliness tokens."""
+        session = zenoh.open(zenoh_config(self.settings))
+        self._generation += 1
+        generation = self._generation
+        self.session, self.zid, self.peers = session, str(session.zid()), {}
+        if generation == 1:
+            self.log.info("link: %s; Zenoh id %s", self.settings.describe(), self.zid)
+        try:
+            self._entities = [session.info.declare_transport_events_listener(
+                lambda event: self._on_transport(event, generation), history=True)]
+            for route in self.routes.values():
+                self._declare_route(session, route, generation)
+            self._entities.append(session.liveliness().declare_subscriber(
+                f"{writers_prefix(self.settings.scope)}/**", lambda sample: self._on_token(sample, generation),
+                history=True))
+        except zenoh.ZError:
+            _close_session(session)  # not left open beside the next attempt
+            raise
 
     def _open_route(self, route: Route) -> None:
-        session = self.session
-        assert session is not None
+        """The DDS side of a route: its reader of this site's writers."""
         flow = route.flow
 
         def on_event(event: str, topic: str, status: Any) -> None:
@@ -279,6 +310,11 @@ class SiteBridge:
                                      overrides=(Policy.History.KeepLast(self.reader_depth),
                                                 Policy.ResourceLimits(-1, -1, -1), Policy.IgnoreLocal.Participant))
         route.reader = RawReader(reader, zero_copy=False)
+        if route.transient_local:
+            route.recent = deque(maxlen=route.depth)
+
+    def _declare_route(self, session: zenoh.Session, route: Route, generation: int) -> None:
+        """The Zenoh side of a route, on one session."""
         congestion = zenoh.CongestionControl.BLOCK if route.reliable else zenoh.CongestionControl.DROP
         reliability = zenoh.Reliability.RELIABLE if route.reliable else zenoh.Reliability.BEST_EFFORT
         if route.transient_local:
@@ -291,6 +327,8 @@ class SiteBridge:
                 allowed_origin=zenoh.Locality.REMOTE,
                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=route.depth))
             route.matched.set()  # what it publishes while no site listens waits in its cache
+            for payload, attachment in route.recent or ():  # a new session's cache holds what the old one held
+                route.publisher.put(payload, attachment=attachment)
         else:
             # Other sites only: this session's own subscriber of the key must not count as a listener.
             route.publisher = session.declare_publisher(route.key, congestion_control=congestion,
@@ -301,6 +339,8 @@ class SiteBridge:
                                                           allowed_origin=zenoh.Locality.REMOTE)
 
             def on_matching(status: Any) -> None:
+                if generation != self._generation:
+                    return  # an older session's publisher, closing
                 if status.matching:
                     route.matched.set()
                 else:
@@ -309,6 +349,9 @@ class SiteBridge:
             self._entities.append(route.publisher.declare_matching_listener(on_matching))
             if route.publisher.matching_status:
                 route.matched.set()
+
+    def _start_threads(self, route: Route) -> None:
+        flow = route.flow
         for target, name in ((self._send_loop, "to-link"), (self._write_loop, "from-link")):
             thread = threading.Thread(target=target, args=(route,), name=f"{name} {flow.topic}", daemon=True)
             thread.start()
@@ -320,17 +363,74 @@ class SiteBridge:
                       route.priority, budget.describe())
 
     # -- Zenoh callbacks (Zenoh's threads) --------------------------------------------------------------------
-    def _on_transport(self, event: Any) -> None:
+    def _on_transport(self, event: Any, generation: int) -> None:
+        if generation != self._generation:
+            return  # an older session's transports, closing with it
         transport = event.transport
         zid, kind = str(transport.zid), str(transport.whatami).split(".")[-1].lower()
         if event.kind == zenoh.SampleKind.PUT:
             self.peers[zid] = kind
             self.log.info("link: connected to %s %s (%d open)", kind, zid, len(self.peers))
         else:
-            self.peers.pop(zid, None)
+            if self.peers.pop(zid, None) is None:
+                return  # the end of a transport that closed before (its socket lingered): nothing changes
             self.log.warning("link: %s %s disconnected (%d open)", kind, zid, len(self.peers))
+            if not self.peers and self.settings.connect:
+                self._renewal.set()
 
-    def _on_token(self, sample: zenoh.Sample) -> None:
+    # -- a new session once every link is down ---------------------------------------------------------------
+    # A transport that Zenoh is still closing (its socket lingers up to 10 s while data it sent is unacknowledged)
+    # ends by deleting whatever transport the manager holds for that peer's Zenoh id: if this site has reconnected
+    # meanwhile, the other site's new transport to it is cut and carries nothing more, while both sides stay
+    # connected (eclipse-zenoh/zenoh#1886; docs/measurements/zenoh.md). A site that dials its links therefore comes
+    # back with a new Zenoh id, which no closing transport can match: a new session, declared again as before.
+    def _renew_loop(self) -> None:
+        while True:
+            self._renewal.wait()
+            if self._stop.is_set():
+                return
+            self._renewal.clear()
+            self._renew_session()
+
+    def _renew_session(self) -> None:
+        with self._session_lock:
+            for route in self.routes.values():
+                route.send_lock.acquire()
+            try:
+                old, old_zid = self.session, self.zid
+                for route in self.routes.values():
+                    route.token = None  # undeclared with the old session
+                    if not route.transient_local:
+                        route.matched.clear()
+                self._generation += 1  # nothing of the old session counts any more
+                if old is not None and self.settings.listen:
+                    _close_session(old)  # its listening sockets first: the new session listens on the same
+                    old = None
+                failures = 0
+                while not self._stop.is_set():
+                    try:
+                        self._start_session()
+                        break
+                    except zenoh.ZError as error:
+                        if failures == 0:
+                            self.log.warning("link: cannot open a new Zenoh session: %s; retrying every second",
+                                             _zenoh_error(error))
+                        failures += 1
+                        self._stop.wait(1.0)
+                self.renewals += 1
+            finally:
+                for route in self.routes.values():
+                    route.send_lock.release()
+        if old is not None:  # its transports may linger: closed aside, the new session dials meanwhile
+            threading.Thread(target=_close_session, args=(old,), name="zenoh-close", daemon=True).start()
+        if self._stop.is_set():
+            return
+        self.log.info("link: every link was down: a new Zenoh session, id %s (was %s), so that a link the other "
+                      "site still closes cannot cut the next one", self.zid, old_zid)
+
+    def _on_token(self, sample: zenoh.Sample, generation: int) -> None:
+        if generation != self._generation:
+            return
         key = str(sample.key_expr)
         token = parse_writers_key(self.settings.scope, key)
         if token is None or token.topic not in self.routes:
@@ -440,15 +540,21 @@ class SiteBridge:
         with route.lock:
             alive = [handle for handle in route.alive_writers]
         live = any(not self.is_bridge_writer(route, handle) for handle in alive)
-        assert self.session is not None
-        if live and route.token is None:
-            route.token = self.session.liveliness().declare_token(
-                writers_key(self.settings.scope, self.settings.site, self.zid, route.topic, route.flow.type_name))
-            self.log.info("[%s] this site has a live writer: announced to the other sites", route.topic)
-        elif not live and route.token is not None:
-            route.token.undeclare()
-            route.token = None
-            self.log.info("[%s] no live writer on this site any more: withdrawn from the other sites", route.topic)
+        if not self._session_lock.acquire(blocking=False):
+            return  # a new session is being opened: the next call declares on it
+        try:
+            if live and route.token is None and self.session is not None:
+                route.token = self.session.liveliness().declare_token(
+                    writers_key(self.settings.scope, self.settings.site, self.zid, route.topic,
+                                route.flow.type_name))
+                self.log.info("[%s] this site has a live writer: announced to the other sites", route.topic)
+            elif not live and route.token is not None:
+                route.token.undeclare()
+                route.token = None
+                self.log.info("[%s] no live writer on this site any more: withdrawn from the other sites",
+                              route.topic)
+        finally:
+            self._session_lock.release()
 
     def proxy_lease_s(self, route: Route) -> float:
         """The liveliness lease of the bridge's writer of a topic: the bridge's, or the profile's if shorter."""
@@ -496,8 +602,12 @@ class SiteBridge:
             route.sequence += 1
             envelope = Envelope(sample.kind, sample.source_timestamp, route.sequence, self.settings.site,
                                 route.flow.type_name)
+            payload, attachment = bytes(sample.data), envelope.encode()
             try:
-                route.publisher.put(bytes(sample.data), attachment=envelope.encode())
+                with route.send_lock:
+                    route.publisher.put(payload, attachment=attachment)
+                    if route.recent is not None:
+                        route.recent.append((payload, attachment))
                 route.sent += 1
                 route.sent_bytes += len(sample.data)
             except zenoh.ZError as error:
@@ -539,7 +649,7 @@ class SiteBridge:
                               "max_queued": in_counts.max_length, "max_queued_bytes": in_counts.max_bytes,
                               "remote_writers": sorted(set(route.remote_writers.values()))},
             }
-        return {"site": self.settings.site, "peers": len(self.peers),
+        return {"site": self.settings.site, "peers": len(self.peers), "renewals": self.renewals,
                 "refused_handshakes": self.zenoh_log.refused, "rss_MB": round(rss_mb(), 1), "topics": topics}
 
     def status_line(self, previous: dict[str, Any], current: dict[str, Any]) -> str | None:
@@ -564,19 +674,33 @@ class SiteBridge:
                 f"{current['peers']} peer(s)")
 
     def close(self) -> None:
+        self._stop.set()
+        self._renewal.set()
         for route in self.routes.values():
             route.outbound.close()
             route.inbound.close()
-        if self.session is not None:
-            for route in self.routes.values():
-                if route.token is not None:
-                    route.token.undeclare()
-                    route.token = None
-            self.session.close()
+        with self._session_lock:
+            if self.session is not None:
+                for route in self.routes.values():
+                    if route.token is not None:
+                        route.token.undeclare()
+                        route.token = None
+                _close_session(self.session)
         deadline = time.monotonic() + 3.0  # a thread blocked on a stalled link is a daemon: it is not waited for
         for thread in self.threads:
             thread.join(timeout=max(0.0, deadline - time.monotonic()))
         self.zenoh_log.stop()
+
+
+def _zenoh_error(error: zenoh.ZError) -> str:
+    return str(error).split(" at /")[0]  # without the Rust source location
+
+
+def _close_session(session: zenoh.Session) -> None:
+    try:
+        session.close()
+    except zenoh.ZError:
+        pass  # closed already: nothing of it is used any more
 
 
 def _delta(now: dict[str, Any], before: dict[str, Any] | None, direction: str, name: str) -> int:
