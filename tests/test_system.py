@@ -94,8 +94,11 @@ def test_sensor_fusion_copies_velocity_and_event_mode(apps, domain_id: int,  # t
     bus = make_bus(domain_id)
     reader = bus.reader("SensorObjects", SensorObjectList, "SensorFusion")
     domain = ["--domain", str(domain_id)]
-    apps.start("sensor_fusion", *domain, "-D", "config.mode=event")
+    fusion = apps.start("sensor_fusion", *domain, "-D", "config.mode=event")
     apps.start("vision", *domain, *FAST, "-D", f"dataFile={scene(tmp_path / 'scene.csv', tall_rows=range(0))}")
+    # the 15 s of take_samples start once fusion publishes, not while the two programs may still be importing on a
+    # busy machine (a clean clone's --busy run took none in 15 s from the start)
+    fusion.wait_for(r"published list \d+")
     lists = take_samples(reader, 3)
     assert len(lists) >= 3
     car = lists[-1].objects[0]
