@@ -331,7 +331,7 @@ def test_a_link_mended_while_the_old_one_still_closes_carries_data_again(sites: 
         sites.cut()
         bridge_a.wait_for(rf"link: peer {b_id} disconnected", timeout=30)
         sites.mend()
-        # frames for 3 s on end: a new link cut by the old one's late close carries them for a second at most
+        # frames in 4 more seconds: a new link that the old one's late close cuts carries them for a second at most
         bridge_b.wait_for_more(r"from link: CameraImageData=[1-9]", more=4, timeout=30)
         renewal = bridge_b.wait_for(rf"a new Zenoh session, id \w+ \(was {b_id}\)", timeout=5)
         new_id = renewal.split("a new Zenoh session, id ")[1].split()[0]
