@@ -177,6 +177,28 @@ def test_a_stalled_or_dead_subscriber_holds_a_reliable_publisher_back_at_most_ma
     assert int(result["gaps"]) > 0 and result["mismatches"] == "0", stalled.output
 
 
+def test_the_last_frame_of_a_count_waits_for_room_and_is_sent_like_any_other(  # type: ignore[no-untyped-def]
+        apps, domain_id: int, prefix: str) -> None:
+    """``--count 9`` with flow control's window of 8 and a subscriber that takes nothing before the publisher exits:
+    the 9th frame, the last, waits for room (max_blocking_time, 0.5 s) and is sent, as any other would be. (The end
+    of ``--count`` used to stop the application before its last frame was written, and flow control gave that frame
+    up as if a signal had stopped it: a loaded run sent 2,999 frames of 3,000.)"""
+    qos = ["-D", f"qos.File={SHORT_BLOCKING_QOS}", "-D", "qos.Library=CameraTests",
+           "-D", "qos.Camera.Profile=CameraShortBlocking", *SMALL_FRAMES]
+    memory = SharedMemory("test", domain_id, "CameraImageData", prefix)
+    reader = SharedReader(memory, Qos(Policy.History.KeepLast(8)))
+    try:
+        pub = apps.start("camera_pub", *shm_args(domain_id, prefix, "--count", "9", "-D", "config.pubInterval=0",
+                                                 "-D", "config.waitSubscribers=0", *qos))
+        assert pub.wait_exit(timeout=TIMEOUT) == 0, pub.output
+        assert "not written" not in pub.output, pub.output
+        assert "shared memory: no sample consumed for 0.5 s" in pub.output, pub.output  # it did wait for room
+        assert "shared memory: 9 frames sent, 0 written on DDS" in pub.output, pub.output
+    finally:
+        reader.close()
+        memory.close()
+
+
 def test_a_keep_last_subscriber_never_holds_a_reliable_keep_all_publisher_back(
         domain_id: int, prefix: str, caplog: pytest.LogCaptureFixture) -> None:
     """A subscriber that keeps only the newest sample (the samples before it overwritten in its queue) acknowledges

@@ -275,7 +275,7 @@ def test_the_bridge_never_holds_the_camera_back_at_full_speed(  # type: ignore[n
                                                 "-D", "config.pubInterval=0"))
     assert camera.wait_exit(timeout=TIMEOUT) == 0, camera.output[-3000:]
     assert "consumed" not in camera.output, camera.output[-3000:]  # shm's "no sample consumed for 10 s" warning
-    assert sent_line(camera, "frames") == (frames, 0)
+    assert sent_line(camera, "frames") == (frames, 0), camera.output[-6000:]
     bridge.wait_for(rf"forwarded {CAMERA_TOPIC}={frames};", timeout=TIMEOUT)
     assert bridge.stop(signal.SIGTERM) == 0, bridge.output[-3000:]
     assert_no_files(prefix)

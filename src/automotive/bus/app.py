@@ -138,6 +138,7 @@ class Application:
         self.stop_event = threading.Event()
         # Set by the main thread's signal handler, which must take no lock (automotive.bus.cli.on_signals).
         self.stop_signalled = False
+        self.stop_requested = False  # stop() was called (by the signal thread, or the application itself)
         if args.count < 0:
             raise ConfigError(f"--count {args.count}: expected 0 (forever) or a positive number")
         self.count: int = args.count
@@ -272,7 +273,17 @@ class Application:
     def running(self) -> bool:
         return not self.stop_event.is_set() and not self.stop_signalled
 
+    @property
+    def interrupted(self) -> bool:
+        """Stopped before its work is done (a signal, an error): a write that flow control holds back gives up. The
+        stop of ``--count``'s last iteration is not one: that iteration's sample is still to be written."""
+        return self.stop_requested or self.stop_signalled
+
     def stop(self) -> None:
+        self.stop_requested = True
+        self._end_loops()
+
+    def _end_loops(self) -> None:
         self.stop_event.set()
         self.guard.set(True)
 
@@ -356,7 +367,7 @@ class Application:
         """Count one iteration of the application's work; stop once ``--count`` iterations are done."""
         self.iterations += 1
         if self.count and self.iterations >= self.count:
-            self.stop()
+            self._end_loops()  # after this iteration, whose work is still to be done (not interrupted)
         return self.iterations
 
     def periodic(self, interval_s: float) -> Iterator[int]:

@@ -94,7 +94,7 @@ class FlowWriter(_SharedEnd):
         self.topic = app.topic_name(role, default_topic)
         qos = app.profiles.writer_qos(app.library, app.profile(role))
         self.shared: shm.SharedWriter | None = self._open(
-            app, self.topic, lambda memory: shm.SharedWriter(memory, max_length, qos, lambda: app.running))
+            app, self.topic, lambda memory: shm.SharedWriter(memory, max_length, qos, lambda: not app.interrupted))
         self.dds_readers = shm.DdsReaders(self.key)
 
         def on_event(event: str, topic: str, status: Any) -> None:

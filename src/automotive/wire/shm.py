@@ -392,9 +392,10 @@ def _reserve(prefix: str, before: dict[str, int], what: str) -> None:
 class SharedWriter:
     """The publisher side: each sample is built (or copied) in loaned shared memory and sent to the subscribers."""
 
-    def __init__(self, memory: SharedMemory, max_length: int, writer_qos: Qos, running: Callable[[], bool]):
+    def __init__(self, memory: SharedMemory, max_length: int, writer_qos: Qos, may_wait: Callable[[], bool]):
+        """``may_wait()`` False: a write that flow control holds back gives up (the application was stopped)."""
         self.memory = memory
-        self.running = running
+        self.may_wait = may_wait
         self.reliable, self.window, self.max_blocking_s = queue_settings(writer_qos)
         self.max_length = max_length
         before = _mapped_segments(memory.prefix)
@@ -458,7 +459,7 @@ class SharedWriter:
         deadline = time.monotonic() + self.max_blocking_s
         look_for_dead = time.monotonic() + WAIT_SLICE_S
         while len(self._pending) > self.window // 2:
-            if not self.running():
+            if not self.may_wait():
                 raise SampleNotSent("stopped while the shared-memory subscribers' queues were full")
             if time.monotonic() >= look_for_dead:  # no acknowledgement for a while: a subscriber may have died
                 look_for_dead = time.monotonic() + WAIT_SLICE_S
@@ -481,7 +482,7 @@ class SharedWriter:
         wait on their acknowledgements, not polling)."""
         self._collect(self.acks.try_wait())
         deadline = time.monotonic() + timeout_s
-        while self._last_left > 0 and self.running():
+        while self._last_left > 0 and self.may_wait():
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return
