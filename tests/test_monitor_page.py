@@ -294,8 +294,10 @@ def test_the_launched_system_shows_its_six_flows_moving_its_health_and_the_vehic
                                  and s["fused"] != "\u2014")(page_state(page)),
           PAGE_S - (time.monotonic() - opened), "the vehicle's speed, blinker and fused objects", shot)
     # Collision avoidance raises the alert while the tall truck leads and clears it when the truck has gone.
-    until(browser, lambda page: page_state(page)["alert"] == "raised", TIMEOUT, "the alert raised", shot)
-    raised = page_state(browser)
+    # The state the wait saw raised, read in one go (a second read may come after the page's next update, which
+    # can have cleared it already: a loaded run read "none: all clear" there).
+    raised = until(browser, lambda page: (lambda s: s if s["alert"] == "raised" else None)(page_state(page)), TIMEOUT,
+                   "the alert raised", shot)
     assert "attention" in raised["alertText"].lower(), raised
     until(browser, lambda page: page_state(page)["alert"] == "clear", TIMEOUT, "the alert cleared", shot)
     until(browser, lambda page: page_state(page)["alert"] == "raised", TIMEOUT, "the alert raised again", shot)
