@@ -25,6 +25,7 @@ from automotive.wire.zenoh_link import (
     ZenohLog,
     data_key,
     parse_writers_key,
+    without_source_location,
     writers_key,
     zenoh_config,
 )
@@ -213,6 +214,15 @@ def test_zenoh_log_lines_become_one_line_reports() -> None:
         "zenoh: error: something else went wrong",
     ]
     assert log.refused == 5
+
+
+def test_zenoh_errors_lose_their_rust_source_locations() -> None:
+    """How Zenoh 1.9 words a listener it cannot open: the locations go, the reason stays."""
+    assert without_source_location(
+        "Cannot create a new TLS listener on 127.0.0.1:7447. Missing TLS private key. at /root/.cargo/git/checkouts/"
+        "zenoh-9c599d5ef3e0480e/cc83980/io/zenoh-links/zenoh-link-tls/src/utils.rs:532. at /root/.cargo/git/"
+        "checkouts/zenoh-9c599d5ef3e0480e/cc83980/io/zenoh-links/zenoh-link-tls/src/unicast.rs:426."
+    ) == "Cannot create a new TLS listener on 127.0.0.1:7447. Missing TLS private key."
 
 
 @pytest.mark.parametrize("args,pattern", [

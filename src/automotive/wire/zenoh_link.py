@@ -290,6 +290,11 @@ def explain_refusal(reason: str) -> str:
     return f"the other side refused this site's certificate ({reason})"
 
 
+def without_source_location(text: str) -> str:
+    """Zenoh's message without the Rust source locations it appends (" at /root/.cargo/.../unicast.rs:426.")."""
+    return _SOURCE_AT.sub("", text).strip()
+
+
 @dataclass
 class ZenohLog:
     """Zenoh's log, read from the standard output it writes to, turned into our lines.
@@ -349,7 +354,7 @@ class ZenohLog:
             if line:
                 self.report(f"zenoh: {line}")
             return
-        level, message = match["level"], _SOURCE_AT.sub("", match["message"])
+        level, message = match["level"], without_source_location(match["message"])
         message = message.replace(" Hint: increase the system open file limit.", "")
         connect = _CANNOT_CONNECT.search(message)
         if connect is not None:

@@ -61,6 +61,7 @@ from automotive.wire.zenoh_link import (
     ZenohLog,
     data_key,
     parse_writers_key,
+    without_source_location,
     writers_key,
     writers_prefix,
     zenoh_config,
@@ -267,7 +268,7 @@ class SiteBridge:
             self._start_session()
         except zenoh.ZError as error:
             raise ConfigError(f"{self.settings.source}: cannot open the Zenoh link ({self.settings.describe()}): "
-                              f"{_zenoh_error(error)}") from None
+                              f"{without_source_location(str(error))}") from None
         for route in self.routes.values():
             self._start_threads(route)
         if self.settings.connect:
@@ -414,7 +415,7 @@ class SiteBridge:
                     except zenoh.ZError as error:
                         if failures == 0:
                             self.log.warning("link: cannot open a new Zenoh session: %s; retrying every second",
-                                             _zenoh_error(error))
+                                             without_source_location(str(error)))
                         failures += 1
                         self._stop.wait(1.0)
                 self.renewals += 1
@@ -690,10 +691,6 @@ class SiteBridge:
         for thread in self.threads:
             thread.join(timeout=max(0.0, deadline - time.monotonic()))
         self.zenoh_log.stop()
-
-
-def _zenoh_error(error: zenoh.ZError) -> str:
-    return str(error).split(" at /")[0]  # without the Rust source location
 
 
 def _close_session(session: zenoh.Session) -> None:
