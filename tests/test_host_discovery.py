@@ -78,6 +78,9 @@ TOOL_FIRST_TIMEOUT_S = 40
 # `cyclonedds subscribe` first scans this long for the topic's writers and their type (XTypes), then subscribes with a
 # participant of its own: started before the system, its scan must hear the applications (within the bound above).
 SUBSCRIBE_SCAN_S = 30
+# A plain participant (this file's script) starting: Python and Cyclone's imports on a busy 2-core machine (a clean
+# clone's busy run saw one print nothing in 20 s).
+PARTICIPANT_START_TIMEOUT_S = 90
 # `cyclonedds ps` scans this long; a tool that joins after the system is answered at its first announcement.
 PS_SCAN_S = 6
 # Late: past Cyclone's initial probing (30 s) and several announcement intervals of the applications and the tools.
@@ -199,7 +202,7 @@ def test_tools_started_before_the_system_find_every_application(apps: AppRunner,
                 f"{SUBSCRIBE_SCAN_S}s", "--suppress-progress-bar", "--color", "none"))
             plain = apps.start_command("plain", on_defaults(lan.host, *participant_command(domain_id, "plain",
                                                                                            *every_flow())))
-            plain.wait_for(r"^ready$")
+            plain.wait_for(r"^ready$", timeout=PARTICIPANT_START_TIMEOUT_S)
             # Both tools have announced themselves on eth0 (the sniffer sees a tool's announcements: they leave the
             # host), so both exist before the first application does.
             wait_until(lambda: len(announcers(sniffer, domain_id)) >= 2, timeout=30,
@@ -249,7 +252,7 @@ def test_plain_participant_joining_the_system_reads_every_flow_and_every_applica
         system: System) -> None:
     plain = system.start("plain", system.lan.host, *participant_command(system.domain, "plain", *every_flow()))
     try:
-        plain.wait_for(r"^ready$")
+        plain.wait_for(r"^ready$", timeout=PARTICIPANT_START_TIMEOUT_S)
         assert_reads_every_flow_and_every_application_finds_it(plain, timeout=20)
     finally:
         plain.stop()
@@ -261,7 +264,7 @@ def test_ros2_reader_on_defaults_gets_lidar_clouds_that_rosbags_decodes(system: 
     reader = system.start("ros2-lidar", system.lan.host, sys.executable, str(SCRIPT), "ros2-lidar", "--domain",
                           str(system.domain), "--save", str(tmp_path), "--count", "2")
     try:
-        reader.wait_for(r"^saved 2 clouds from lidar$", timeout=20)
+        reader.wait_for(r"^saved 2 clouds from lidar$", timeout=PARTICIPANT_START_TIMEOUT_S)  # its start included
     finally:
         reader.stop()
     store = get_typestore(Stores.ROS2_HUMBLE)
@@ -291,9 +294,12 @@ def test_another_hosts_participant_never_matches_an_application(system: System) 
         system.domain, "host_tool", "--read", "PlatformStatus", "--read", "Circle"))
     other: CommandProcess | None = None
     try:
+        # The 20 s bounds below are discovery's, counted once a participant is up: its start is the machine's.
+        tool.wait_for(r"^ready$", timeout=PARTICIPANT_START_TIMEOUT_S)
         tool.wait_for(r"^sample PlatformStatus from vehicle_platform$", timeout=20)
         other = system.start("other_host", system.lan.lan, *participant_command(
             system.domain, "other_host", "--read", "PlatformStatus", "--write", "Circle", "--circles"))
+        other.wait_for(r"^ready$", timeout=PARTICIPANT_START_TIMEOUT_S)
         # The other host's announcement reached the tool, and its circles did.
         tool.wait_for(r"^participant other_host$", timeout=20)
         tool.wait_for(r"^sample Circle from other_host$", timeout=20)
