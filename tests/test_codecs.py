@@ -322,6 +322,21 @@ def test_over_bound_raises_the_bound_error_of_bounds_check(member: str) -> None:
         assert str(error.value) == str(expected.value)
 
 
+def test_a_sample_the_codec_refuses_has_its_bounds_checked_before_cyclones_serializer(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """Writers leave a codec's type's bounds to the codec (automotive.bus.endpoints.CheckedWriter); a sample the
+    codec refuses goes to Cyclone's serializer, and its bounds are checked on the way, with the same message."""
+    sample = OVER_BOUND["Vision::VisionSensor.objects"]
+    codec = codec_for(VisionSensor)
+
+    def refuse(*args: object, **kwargs: object) -> bytes:
+        raise CodecError("Vision::VisionSensor: cannot encode (refused for the test)")
+
+    monkeypatch.setattr(codec, "encode", refuse)
+    with pytest.raises(BoundError, match=r"^Vision::VisionSensor.objects holds 11 elements, over its IDL bound of 10$"):
+        sample.serialize()
+
+
 def test_full_bound_is_accepted_and_extra_bounds_apply() -> None:
     full = SensorObjectList(timestamp=POSIXTimestamp(s=1, ns=2),
                             objects=[sensor_object(i) for i in range(SENSOR_OBJECT_LIST_MAX_SIZE)])
@@ -632,13 +647,16 @@ def test_views_are_checked_like_dataclasses(member: str, index: int, component: 
     ({"count": 3, "ratio": 1.0, "range": math.nan}, "range"),  # a float64 NaN: its high word is a float32 NaN
     ({"count": 3, "ratio": 1.0, "range": 1e308}, None),  # a float64 far beyond float32's range, finite
 ])
-def test_struct_arrays_are_checked_in_one_sum_without_false_problems(words: dict[str, float], bad: str | None) -> None:
+@pytest.mark.parametrize("length", [3, 100])  # summed by Python (up to SMALL_ARRAY_BYTES) and by numpy
+def test_struct_arrays_are_checked_in_one_sum_without_false_problems(words: dict[str, float], bad: str | None,
+                                                                     length: int) -> None:
     """The one-sum look at a structured array (its words read as float32) never misses a non-finite float field and
     never reports an integer or a large float64 whose words merely look non-finite."""
     from automotive.bus import validation
 
     dtype = np.dtype([("count", "<i4"), ("ratio", "<f4"), ("range", "<f8"), ("pad", "<i4")])
-    values = np.zeros(3, dtype)
+    values = np.zeros(length, dtype)
+    assert (values.nbytes <= validation.SMALL_ARRAY_BYTES) == (length == 3)
     for name, value in words.items():
         values[name][1] = value
     problem = validation._check_struct_array(values, "items")

@@ -193,7 +193,6 @@ def body(app: Application) -> None:
     for _ in app.wake_ups(app.waitset(objects_reader, status_reader), timeout_s=lease_s / 2 if lease_s else 1.0):
         now = time.monotonic()
         own_gap_s, last_wake = now - last_wake, now
-        status_count += len(status_reader.take(N=1000))  # read, and otherwise ignored, as in the original
         taken = [objects for objects in objects_reader.take(N=100) if isinstance(objects, SensorObjectList)]
         taken_ns = time.time_ns()
         lists = stall_guard.fresh(taken, "object list(s)", objects_reader)
@@ -248,6 +247,8 @@ def body(app: Application) -> None:
             last_command[:] = [f"command {sample_id}: speed {command.speed:.2f}, steer {command.vehicleSteerAngle:.2f}"]
             app.stats.record("command", sample_id=sample_id)
             app.tick()
+        # Read, and otherwise ignored, as in the original; after the outputs, which the alert chain waits for
+        status_count += len(status_reader.take(N=1000))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -68,7 +68,9 @@ def fuse(samples: list[VisionSensor]) -> np.ndarray[Any, Any]:
     # Field by field: concatenating plain columns is cheap; concatenating structured arrays promotes their dtypes
     # element type by element type (a few tens of microseconds per sample).
     for name in COPIED:
-        objects[name] = np.concatenate([array[name] for array in vision_objects])[:len(objects)]
+        column = (vision_objects[0][name] if len(vision_objects) == 1
+                  else np.concatenate([array[name] for array in vision_objects]))
+        objects[name] = column[:len(objects)]
     return objects
 
 
@@ -134,10 +136,9 @@ def fuse_until_stopped(app: Application, mode: str, interval_s: float, vision: D
         wake_ups = app.wake_ups(lidar.waitset(), timeout_s=until_publish)
     else:
         wake_ups = app.wake_ups(lidar.waitset(vision), timeout_s=1.0)
-    for _ in wake_ups:
-        take_lidar(app, lidar)
-        if mode == "periodic" and time.monotonic() < next_publish:
-            continue
+    def publish() -> None:
+        """Take the vision samples and write their list (none when nothing is pending)."""
+        nonlocal next_publish
         fresh = stall_guard.fresh([s for s in vision.take(N=1000) if isinstance(s, VisionSensor)],
                                   "vision sample(s)", vision)
         if app.stats.enabled:
@@ -146,10 +147,10 @@ def fuse_until_stopped(app: Application, mode: str, interval_s: float, vision: D
                 app.stats.record("take", topic=vision_topic, src=sample.sample_info.source_timestamp, at=taken_ns,
                                  key=sample.id)
         pending.extend(fresh)
-        if mode == "periodic":  # its time has come (checked above): the next one
+        if mode == "periodic":  # its time has come: the next one
             next_publish = max(next_publish + interval_s, time.monotonic())
         if not pending:
-            continue
+            return
         sensors = sorted({sample.id for sample in pending})
         objects = fuse(pending)
         stamp = time.time_ns()
@@ -162,6 +163,15 @@ def fuse_until_stopped(app: Application, mode: str, interval_s: float, vision: D
         app.stats.record("list", number=published, objects=len(objects), samples=len(pending), sensors=sensors,
                          src=stamp, inputs=[sample.sample_info.source_timestamp for sample in pending])
         pending.clear()
+
+    for _ in wake_ups:
+        if mode == "periodic":  # woken by the LiDAR (its hop first) or by the clock
+            take_lidar(app, lidar)
+            if time.monotonic() >= next_publish:
+                publish()
+        else:  # the vision data first: its list is the alert chain's next hop; the LiDAR's stamps can wait
+            publish()
+            take_lidar(app, lidar)
 
 
 def main(argv: list[str] | None = None) -> int:

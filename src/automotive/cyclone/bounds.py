@@ -94,13 +94,14 @@ def _plan(cls: type) -> tuple[_MemberCheck, ...]:
 def check(sample: Any, path: str = "") -> None:
     """Raise BoundError if any bounded sequence or string of ``sample`` is over its IDL bound."""
     cls = type(sample)
-    prefix = path or type_name(cls)
     for member in _plan(cls):  # type: ignore[arg-type]  # a class is hashable
         value = getattr(sample, member.name)
         if member.bound is not None and len(value) > member.bound:
             unit = "characters" if isinstance(value, str) else "elements"
-            raise BoundError(f"{prefix}.{member.name} holds {len(value)} {unit}, over its IDL bound of {member.bound}")
+            raise BoundError(f"{path or type_name(cls)}.{member.name} holds {len(value)} {unit}, over its IDL bound "
+                             f"of {member.bound}")
         if member.element_type is not None:
+            prefix = path or type_name(cls)
             if isinstance(value, IdlStruct):
                 check(value, f"{prefix}.{member.name}")
             else:

@@ -9,7 +9,7 @@ has a codec its own ``serialize`` and ``deserialize`` (instance attributes, so n
   dispose and instance lookup, a caller's own buffer) to Cyclone's serializer;
 - deserialize a whole sample with its encapsulation header with the codec, anything else (keys) with Cyclone's;
 - raise the same :class:`~automotive.cyclone.bounds.BoundError` as :func:`automotive.cyclone.bounds.check` for an
-  over-bound value;
+  over-bound value (a writer leaves the bounds of such a type to it), also for a sample it hands to Cyclone;
 - degrade to Cyclone's serializer for anything else the codec refuses (Cyclone then writes it or raises its own
   error), so the bytes and the errors are never other than Cyclone's own.
 
@@ -33,7 +33,7 @@ import threading
 from importlib import metadata
 from typing import Any
 
-from automotive.cyclone import gate
+from automotive.cyclone import bounds, gate
 from automotive.cyclone.bounds import BoundError
 from automotive.cyclone.codecs import Codec, CodecError, codec_for, codecs
 
@@ -89,7 +89,9 @@ def _make_serialize(idl: Any, codec: Codec) -> Any:
             except BoundError:
                 raise
             except CodecError:
-                pass  # Cyclone's serializer decides: it writes the value or raises its own error
+                # Cyclone's serializer decides: it writes the value or raises its own error; the bounds first,
+                # which the codec checks as it encodes and so may not have reached (writers leave them to it)
+                bounds.check(object)
         return type(idl).serialize(idl, object, use_version_2, buffer, endianness, serialize_kind, prepend_header)
 
     return serialize
