@@ -289,3 +289,39 @@ def test_bad_input_is_one_line_and_exit_2(apps, args: list[str], message: str) -
     assert len(lines) == 1, result.stderr
     assert re.search(message, lines[0]), lines[0]
     assert "Traceback" not in result.stderr + result.stdout
+
+
+def test_takes_in_a_wake_up_loop_are_counted_and_timed_after_the_outputs_with_the_takes_clock(bus: Databus) -> None:
+    """Inside an application's wake-up loop (deferred_bookkeeping) a take's count and latency wait until the loop
+    books them, after the application's outputs, and the latency is the take's; outside, they are booked at once."""
+    from automotive.bus import console, latency
+    from automotive.bus.checkedreader import deferred_bookkeeping
+
+    topic = "BookkeepingTopic"
+    writer = bus.writer(topic, DriverAlerts, "HMI")
+    reader = bus.reader(topic, DriverAlerts, "HMI")
+    deadline = time.monotonic() + 10
+    while not writer.get_matched_subscriptions() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    alert = DriverAlerts(False, False, False, False, False, True)
+
+    def counted() -> int:
+        return console.traffic.totals()[0].get(topic, 0)
+
+    def latencies() -> list[latency.LatencySummary]:
+        return [summary for summary in latency.recent.summaries() if summary.topic == topic and summary.writer is None]
+
+    stamp = time.time_ns() - 5_000_000_000  # written "5 s ago": the latency is about 5,000 ms
+    writer.write(alert, timestamp=stamp)
+    with deferred_bookkeeping() as book:
+        assert wait_for_samples(reader, 1) == [alert]
+        taken_ns = time.time_ns()
+        assert counted() == 0 and latencies() == []  # not yet: the application writes its outputs first
+        time.sleep(0.2)  # time passes before the booking; the latency must not include it
+        book()
+        assert counted() == 1
+        [summary] = latencies()
+        assert 5_000 <= summary.p50_ms <= (taken_ns - stamp) / 1e6, summary
+    writer.write(alert, timestamp=time.time_ns())
+    assert wait_for_samples(reader, 1) == [alert]
+    assert counted() == 2 and latencies()[0].count == 2  # outside the loop: at once

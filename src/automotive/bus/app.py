@@ -41,6 +41,7 @@ from cyclonedds.sub import DataReader
 
 from automotive import config, cyclone
 from automotive.bus import badsamples, console, cyclonelog, diagnostics, memtune, realtime
+from automotive.bus.checkedreader import deferred_bookkeeping
 from automotive.bus.cli import (
     EXIT_BAD_INPUT,
     EXIT_INTERRUPTED,
@@ -398,11 +399,13 @@ class Application:
         The application calls :meth:`tick` for each unit of its work, which ends the loop after ``--count`` of them.
         """
         self.ready()
-        while self.running:
-            wait_s = timeout_s() if callable(timeout_s) else timeout_s
-            waitset.wait(max(int(wait_s * 1e9), 0))
-            if self.running:
-                yield None
+        with deferred_bookkeeping() as book_takes:
+            while self.running:
+                book_takes()  # the counts and latencies of the last wake-up's takes, after its outputs
+                wait_s = timeout_s() if callable(timeout_s) else timeout_s
+                waitset.wait(max(int(wait_s * 1e9), 0))
+                if self.running:
+                    yield None
 
     def close(self) -> None:
         if self.diagnostics is not None:

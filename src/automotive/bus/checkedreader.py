@@ -17,7 +17,11 @@ Applications keep calling ``reader.take(N=...)`` and filtering ``isinstance(samp
 what a remote writer sent.
 
 Each take also records the latency of the samples it gives (its one clock read minus each writer's source timestamp,
-per writer participant: :func:`record_latencies`), which /diagnostics reports (automotive.bus.latency.recent).
+per writer participant: :func:`record_latencies`), which /diagnostics reports (automotive.bus.latency.recent), and
+counts them (automotive.bus.console.traffic). Inside :func:`deferred_bookkeeping` (an application's wake-up loop,
+automotive.bus.app) both wait, with the take's clock read, until the application has written what the samples made:
+after an idle wake-up every piece of Python costs several times its warm price, and the next hop of a chain waits for
+none of it (docs/measurements/alert-latency.md).
 
 :meth:`CheckedReader.use_views` makes one reader decode its sequences of fixed-size structs (the vision objects, the
 fused object list) as read-only numpy structured arrays with the generated codec (automotive.cyclone.codecs), without
@@ -28,8 +32,10 @@ from __future__ import annotations
 
 import dataclasses
 import struct
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsParticipant
@@ -49,6 +55,7 @@ Decoder = Callable[[bytes], Any]
 _DECODERS: dict[type, Decoder] = {}
 _WRITER_CACHE = 64  # writer descriptions kept per reader; cleared when full (a writer is looked up again, no more)
 _PARTICIPANT_CACHE = 1024  # participant names kept per reader, the same way
+_DEFERRED_TAKES = 64  # takes whose bookkeeping waits, at most; beyond, it is done at once (a loop that never flushes)
 
 
 def set_decoder(data_type: type, decode: Decoder | None) -> None:
@@ -192,10 +199,19 @@ class CheckedReader(DataReader[T]):
                 samples += batch
         else:
             samples = self._checked(fetched)
-        console.traffic.count_in(self.topic.name, sum(not isinstance(sample, InvalidSample) for sample in samples))
         if samples:
-            record_latencies(self.topic.name, samples, self._writer_names)
+            now = time.time_ns()
+            pending = _bookkeeping.pending
+            if _bookkeeping.deferring and len(pending) < _DEFERRED_TAKES:
+                pending.append((self, tuple(samples), now))
+            else:
+                self._book(samples, now)
         return samples
+
+    def _book(self, samples: tuple[Any, ...] | list[Any], now_ns: int) -> None:
+        """Count a take's samples and record their latencies as of ``now_ns``, the take's clock read."""
+        console.traffic.count_in(self.topic.name, sum(not isinstance(sample, InvalidSample) for sample in samples))
+        record_latencies(self.topic.name, samples, self._writer_names, now_ns)
 
     def read(self, N: int = 1, condition: Any = None, instance_handle: int | None = None) -> list[Any]:
         fetched = serdata.fetch(self, False, N, condition, instance_handle)
@@ -298,10 +314,40 @@ def report_bad_sample(reader: DataReader[Any], writer_names: WriterNames, proble
     reporter.report(reader.topic.get_name(), problem, sender, action)
 
 
-def record_latencies(topic: str, samples: list[Any], writer_names: WriterNames) -> None:
+class _Bookkeeping(threading.local):
+    """One thread's takes whose counts and latencies wait (:func:`deferred_bookkeeping`)."""
+
+    def __init__(self) -> None:
+        self.deferring = False
+        self.pending: list[tuple[CheckedReader[Any], tuple[Any, ...], int]] = []
+
+    def flush(self) -> None:
+        pending, self.pending = self.pending, []
+        for reader, samples, now_ns in pending:
+            reader._book(samples, now_ns)
+
+
+_bookkeeping = _Bookkeeping()
+
+
+@contextmanager
+def deferred_bookkeeping() -> Iterator[Callable[[], None]]:
+    """Within, this thread's takes leave their counts and latencies (measured at the take) to the function it gives,
+    which the caller calls once it has written its outputs; at the end, what is left is done. Other threads' takes
+    are booked at once."""
+    _bookkeeping.deferring = True
+    try:
+        yield _bookkeeping.flush
+    finally:
+        _bookkeeping.deferring = False
+        _bookkeeping.flush()
+
+
+def record_latencies(topic: str, samples: tuple[Any, ...] | list[Any], writer_names: WriterNames,
+                     now_ns: int | None = None) -> None:
     """Record the latency of the samples of one take (automotive.bus.latency.recent), per writer participant, with
-    one clock read."""
-    now = time.time_ns()
+    one clock read (``now_ns``: the take's, else now)."""
+    now = time.time_ns() if now_ns is None else now_ns
     by_writer: dict[int, list[int]] = {}
     for sample in samples:
         info = sample.sample_info
