@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from cyclonedds.core import DDSException, InstanceState, SampleState, ViewState
+from cyclonedds.core import DDSException, InstanceState, QueryCondition, ReadCondition, SampleState, ViewState
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
@@ -27,6 +27,21 @@ from automotive.cyclone import gate
 
 ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
 Buffer = bytes | bytearray | memoryview
+
+_clayer: Any = None  # cyclonedds._clayer, imported once the gate was first found open
+
+
+def _c_layer() -> Any:
+    """Cyclone's C layer (``cyclonedds._clayer``) while the gate is open, else None. Imported once: an import
+    statement at every take costs a cold wake-up tens of microseconds."""
+    global _clayer
+    if not gate.enabled():
+        return None
+    if _clayer is None:
+        from cyclonedds import _clayer as clayer
+
+        _clayer = clayer
+    return _clayer
 
 
 @dataclass
@@ -44,10 +59,9 @@ class Taken:
 
 def take(reader: DataReader[Any], limit: int) -> list[Taken]:
     """Take up to ``limit`` samples of any state, as CDR bytes."""
-    if gate.enabled():
-        from cyclonedds._clayer import ddspy_take
-
-        result = ddspy_take(reader._ref, ANY_STATE, limit)
+    clayer = _c_layer()
+    if clayer is not None:
+        result = clayer.ddspy_take(reader._ref, ANY_STATE, limit)
         if isinstance(result, int):
             raise DDSException(result, f"Occurred while taking serialized samples in {reader!r}")
         return [Taken(serialized, info) for serialized, info in result]
@@ -64,20 +78,20 @@ def fetch(reader: DataReader[Any], take: bool, count: int, condition: Any = None
           instance_handle: int | None = None) -> list[tuple[bytes, Any]] | None:
     """The serialized samples (and their infos) a ``DataReader.take`` (or ``read``) with these arguments would
     deserialize, chosen as it chooses them; None with the gate closed (then only the public take and read remain)."""
-    if not gate.enabled():
+    clayer = _c_layer()
+    if clayer is None:
         return None
-    from cyclonedds._clayer import ddspy_read, ddspy_read_handle, ddspy_take, ddspy_take_handle
-    from cyclonedds.core import QueryCondition, ReadCondition
-
     entity, mask = reader._ref, ANY_STATE
-    if isinstance(condition, ReadCondition):
-        entity, mask = condition.reader._ref, condition.mask
-    elif isinstance(condition, QueryCondition):
-        entity, mask = condition._ref, condition.mask
+    if condition is not None:
+        if isinstance(condition, ReadCondition):
+            entity, mask = condition.reader._ref, condition.mask
+        elif isinstance(condition, QueryCondition):
+            entity, mask = condition._ref, condition.mask
     if instance_handle is None:
-        result = (ddspy_take if take else ddspy_read)(entity, mask, count)
+        result = (clayer.ddspy_take if take else clayer.ddspy_read)(entity, mask, count)
     else:
-        result = (ddspy_take_handle if take else ddspy_read_handle)(entity, mask, count, instance_handle)
+        result = (clayer.ddspy_take_handle if take else clayer.ddspy_read_handle)(entity, mask, count,
+                                                                                  instance_handle)
     if isinstance(result, int):
         raise DDSException(result, f"Occurred while {'taking' if take else 'reading'} data in {reader!r}")
     return list(result)
@@ -97,33 +111,30 @@ def serialize(writer: DataWriter[Any], sample: Any) -> bytes:
 
 def write(writer: DataWriter[Any], data: Buffer, timestamp: int | None = None) -> None:
     """Write a serialized sample (CDR with its header, a whole number of 4-byte units)."""
-    if gate.enabled():
-        from cyclonedds._clayer import ddspy_write, ddspy_write_ts
-
-        _check(writer, ddspy_write(writer._ref, data) if timestamp is None
-               else ddspy_write_ts(writer._ref, data, timestamp), "writing")
+    clayer = _c_layer()
+    if clayer is not None:
+        _check(writer, clayer.ddspy_write(writer._ref, data) if timestamp is None
+               else clayer.ddspy_write_ts(writer._ref, data, timestamp), "writing")
         return
     writer.write(writer.data_type.deserialize(bytes(data)), timestamp)
 
 
 def dispose(writer: DataWriter[Any], data: Buffer, timestamp: int | None = None) -> None:
     """Dispose the instance whose key ``data`` (a whole serialized sample) holds."""
-    if gate.enabled():
-        from cyclonedds._clayer import ddspy_dispose, ddspy_dispose_ts
-
-        _check(writer, ddspy_dispose(writer._ref, data) if timestamp is None
-               else ddspy_dispose_ts(writer._ref, data, timestamp), "disposing")
+    clayer = _c_layer()
+    if clayer is not None:
+        _check(writer, clayer.ddspy_dispose(writer._ref, data) if timestamp is None
+               else clayer.ddspy_dispose_ts(writer._ref, data, timestamp), "disposing")
         return
     writer.dispose(writer.data_type.deserialize(bytes(data)), timestamp)
 
 
 def unregister(writer: DataWriter[Any], data: Buffer, timestamp: int | None = None) -> None:
     """Unregister the instance whose key ``data`` (a whole serialized sample) holds."""
-    if gate.enabled():
-        from cyclonedds._clayer import ddspy_unregister_instance, ddspy_unregister_instance_ts
-
-        _check(writer, ddspy_unregister_instance(writer._ref, data) if timestamp is None
-               else ddspy_unregister_instance_ts(writer._ref, data, timestamp), "unregistering")
+    clayer = _c_layer()
+    if clayer is not None:
+        _check(writer, clayer.ddspy_unregister_instance(writer._ref, data) if timestamp is None
+               else clayer.ddspy_unregister_instance_ts(writer._ref, data, timestamp), "unregistering")
         return
     writer.unregister_instance(writer.data_type.deserialize(bytes(data)), timestamp)
 
