@@ -31,6 +31,7 @@ from automotive import config
 from automotive.bus.endpoints import Databus
 from automotive.bus.network import NetworkConfig
 from automotive.bus.qos import QosProfiles
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.types.Alerts import DriverAlerts
 
 FLAGS = ("blindSpotDriver", "blindSpotPassenger", "frontCollision", "backCollision", "parkingCollision",
@@ -61,9 +62,9 @@ def write(args: argparse.Namespace) -> int:
     bus = make_bus(args)
     writer = bus.writer("AlertTopic", DriverAlerts, "HMI")
     deadline = time.monotonic() + args.timeout
-    while len(writer.get_matched_subscriptions()) < args.readers:
+    while len(matched_subscriptions(writer)) < args.readers:
         if time.monotonic() > deadline:
-            print(f"only {len(writer.get_matched_subscriptions())} of {args.readers} readers matched", flush=True)
+            print(f"only {len(matched_subscriptions(writer))} of {args.readers} readers matched", flush=True)
             return 1
         time.sleep(0.05)  # polling a status: the readers are other processes on another host
     print(f"matched {args.readers} readers in {time.monotonic() - created:.2f} s", flush=True)

@@ -44,6 +44,7 @@ from dds_helpers import wait_until
 from lan_host import HOST_ADDRESS, LAN_ADDRESS, READY, LanHost, frames
 
 from automotive.bus.ports import domain_base
+from automotive.cyclone.matched import matched_publications, matched_subscriptions
 from automotive.tools.support import netlab
 from automotive.tools.support.children import program_command
 
@@ -467,7 +468,7 @@ def participate(args: argparse.Namespace) -> None:
             if name != args.name:
                 say(f"participant {name}")
         for topic, reader in readers.items():
-            for handle in reader.get_matched_publications():
+            for handle in matched_publications(reader):
                 if (who := names.of(reader.get_matched_publication_data(handle))) is not None:
                     say(f"writer {topic} of {who} matched")
             for taken in take(reader, 64):  # CDR bytes: no time spent decoding 4 MiB camera frames
@@ -475,7 +476,7 @@ def participate(args: argparse.Namespace) -> None:
                         reader.get_matched_publication_data(taken.info.publication_handle))) is not None:
                     say(f"sample {topic} from {who}")
         for topic, writer in writers.items():
-            for handle in writer.get_matched_subscriptions():
+            for handle in matched_subscriptions(writer):
                 if (who := names.of(writer.get_matched_subscription_data(handle))) is not None:
                     say(f"reader {topic} of {who} matched")
         if args.circles:

@@ -49,6 +49,7 @@ from automotive.bus.qos import QosProfiles
 from automotive.cyclone import codec_hook, codecgen, fastpath, gate
 from automotive.cyclone.bounds import type_name
 from automotive.cyclone.codecs import codecs
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.sim.csvdata import load_vision_rows
 from automotive.tools.support.children import Child, program_command, thread_cpu_by_name
 from automotive.types.Vision import VisionSensor
@@ -244,7 +245,7 @@ def fusion_cpu(mode: str, codecs_on: bool, sensors: int, window: float, domain: 
         writer = bus.writer("VisionTopic", VisionSensor, "Vision")
         rows = vision_rows()
         deadline = time.monotonic() + 60
-        while not writer.get_matched_subscriptions():
+        while not matched_subscriptions(writer):
             if fusion.poll() is not None or time.monotonic() > deadline:
                 raise RuntimeError(f"sensor_fusion did not match: {fusion.output[-2000:]}")
             time.sleep(0.05)  # polling the match, bounded

@@ -23,6 +23,7 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from automotive.bus.errors import ConfigError
+from automotive.cyclone.matched import matched_publications
 from automotive.tools.support.children import exit_on_sigterm
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.wire.camera import frame_type
@@ -47,7 +48,7 @@ def read(domain: int, image_size: str) -> dict[str, int]:
             waitset.wait(duration(seconds=WAIT_S))
             for name, reader in readers.items():
                 counts[name] += sum(1 for sample in reader.take(N=16) if sample.sample_info.valid_data)
-            if not ready and all(reader.get_matched_publications() for reader in readers.values()):
+            if not ready and all(matched_publications(reader) for reader in readers.values()):
                 ready = True
                 print(READY_LINE, flush=True)
     except (KeyboardInterrupt, SystemExit):

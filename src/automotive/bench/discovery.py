@@ -79,6 +79,7 @@ from automotive import config as shipped
 from automotive.tools.flows import system_flows
 from automotive.bus.qos import QosProfiles
 from automotive.bus.app import DEFAULT_LIBRARY
+from automotive.cyclone.matched import matched_publications
 domain, ports, timeout = int(sys.argv[1]), sys.argv[2].split(","), float(sys.argv[3])
 # Only these ports: without multicast, Cyclone would probe every index of localhost itself (AddLocalhost), which
 # the tools this stands for do not do.
@@ -97,7 +98,7 @@ readers = [DataReader(participant, Topic(participant, flow.topic, flow.data_type
 matched = {}
 while len(matched) < len(readers) and time.monotonic() - started < timeout:
     for flow, reader in zip(flows, readers):
-        if flow.topic not in matched and reader.get_matched_publications():
+        if flow.topic not in matched and matched_publications(reader):
             matched[flow.topic] = time.monotonic() - started
     time.sleep(0.01)
 print(json.dumps({"matched": matched, "flows": [flow.topic for flow in flows]}), flush=True)

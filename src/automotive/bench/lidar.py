@@ -36,6 +36,7 @@ from automotive import config, cyclone
 from automotive.bus.cli import ArgumentParser, add_domain_option
 from automotive.bus.network import NetworkConfig
 from automotive.bus.qos import QosProfiles
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.sim.scene import LidarScene, ScanGrid
 from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_
 
@@ -76,7 +77,7 @@ def make_writer(domain_id: int, profile: str, timeout_s: float = 10.0
     writer = DataWriter(writer_side, Topic(writer_side, "rt/LidarTopic", PointCloud2_), qos=writer_qos)
     reader = DataReader(reader_side, Topic(reader_side, "rt/LidarTopic", PointCloud2_), qos=reader_qos)
     deadline = time.monotonic() + timeout_s
-    while not writer.get_matched_subscriptions():
+    while not matched_subscriptions(writer):
         if time.monotonic() > deadline:
             raise SystemExit(f"{PROG}: no reader matched the writer on domain {domain_id} within {timeout_s} s")
         time.sleep(0.01)

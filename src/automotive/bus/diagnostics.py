@@ -49,6 +49,7 @@ from automotive.bus import console, latency
 from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.endpoints import Databus
 from automotive.bus.qos import ROS2_DEFAULT_PROFILE, QosProfiles
+from automotive.cyclone.matched import matched_publications, matched_subscriptions
 from automotive.types.builtin_interfaces.msg.dds_ import Time_
 from automotive.types.diagnostic_msgs.msg.dds_ import DiagnosticArray_, DiagnosticStatus_, KeyValue_
 from automotive.types.diagnostic_msgs.msg.dds_.DiagnosticStatus_Constants import ERROR, OK, STALE, WARN
@@ -105,8 +106,8 @@ def endpoint_states(endpoints: Iterable[DataWriter[Any] | DataReader[Any]]) -> l
     for endpoint in endpoints:
         reader = isinstance(endpoint, DataReader)
         try:
-            matched = len(endpoint.get_matched_publications() if isinstance(endpoint, DataReader)
-                          else endpoint.get_matched_subscriptions())
+            matched = len(matched_publications(endpoint) if isinstance(endpoint, DataReader)
+                          else matched_subscriptions(endpoint))
         except DDSException:
             continue  # deleted while the program ends
         states.append(EndpointState(endpoint.topic.get_name(), reader, matched))

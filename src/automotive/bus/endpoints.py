@@ -32,6 +32,7 @@ from automotive.bus.qos import QosProfiles
 from automotive.bus.stats import Stats
 from automotive.bus.status import EventCounts, EventHook, StatusListener
 from automotive.cyclone import bounds, codec_hook, hostonly
+from automotive.cyclone.matched import matched_publications, matched_subscriptions
 
 T = TypeVar("T")
 
@@ -242,9 +243,9 @@ class Databus:
         lines = []
         for endpoint in self._endpoints:
             topic = endpoint.topic.get_name()
-            if isinstance(endpoint, DataWriter) and not endpoint.get_matched_subscriptions():
+            if isinstance(endpoint, DataWriter) and not matched_subscriptions(endpoint):
                 lines.append(f"[{topic}] writer: no reader matched")
-            elif isinstance(endpoint, DataReader) and not endpoint.get_matched_publications():
+            elif isinstance(endpoint, DataReader) and not matched_publications(endpoint):
                 lines.append(f"[{topic}] reader: no writer matched")
         return lines
 

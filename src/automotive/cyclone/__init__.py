@@ -6,7 +6,9 @@
 - :mod:`.bounds`: IDL bounds checked before a write, with a clear message (Cyclone's type-hint resolution);
 - :mod:`.codec_hook`: the generated fast codecs (:mod:`.codecs`, ``automotive/types/codecs.py``) as the serializer
   of every type they cover (Cyclone's ``IDL.serialize``/``deserialize`` replaced per type);
-- :mod:`.liveliness`: a writer's liveliness asserted without writing (``dds_assert_liveliness``, ctypes).
+- :mod:`.liveliness`: a writer's liveliness asserted without writing (``dds_assert_liveliness``, ctypes);
+- :mod:`.matched`: a writer's matched readers and a reader's matched writers, asked past a race of Cyclone DDS Python
+  (public API; every program asks through it).
 
 Each has a fallback on Cyclone's public API, used when the gate is closed (another cyclonedds version, a missing
 internal, or ``AUTOMOTIVE_FAST_PATHS=off``): slower, the same samples. Liveliness has none: the writer keeps its

@@ -24,6 +24,7 @@ from automotive.bus.app import Application
 from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.status import EventHook
 from automotive.cyclone import serdata
+from automotive.cyclone.matched import matched_publications, matched_subscriptions
 from automotive.wire import shm
 from automotive.wire.rawsample import RawWriter
 
@@ -117,7 +118,7 @@ class FlowWriter(_SharedEnd):
     @property
     def subscribers(self) -> int:
         """Readers of the flow: DDS readers matched, plus shared-memory subscribers of readers without DDS."""
-        return len(self.writer.get_matched_subscriptions())
+        return len(matched_subscriptions(self.writer))
 
     def publish(self, length: int, fill: Callable[[memoryview], int], write_dds: Callable[[int | None], int]) -> int:
         """Publish one sample: ``fill(view)`` writes its ``length`` serialized bytes into shared memory and returns
@@ -248,7 +249,7 @@ class FlowReader(_SharedEnd):
         """Report a missed deadline of the shared-memory samples (call after each wake-up)."""
         # No writer left (it stopped, or DDS found it dead when its lease ended): no instance is expected any more,
         # as DDS stops watching an instance without writers.
-        if self.deadline.watching and (not self.memory_publishers() or not self.reader.get_matched_publications()):
+        if self.deadline.watching and (not self.memory_publishers() or not matched_publications(self.reader)):
             self.deadline.forget()
         self.deadline.check()
 

@@ -53,6 +53,7 @@ from cyclonedds.sub import DataReader
 from automotive.bus.checkedreader import CheckedReader, WriterNames
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import Properties
+from automotive.cyclone.matched import matched_publications, matched_subscriptions
 from automotive.wire.rawsample import release_lent_views
 
 TRANSPORTS = ("auto", "shm", "udp")
@@ -278,7 +279,7 @@ class DdsReaders:
     def count(self) -> int:
         if self._changed and self.writer is not None:
             self._changed = False  # before counting: a change meanwhile counts again next time
-            self._count = sum(1 for handle in self.writer.get_matched_subscriptions()
+            self._count = sum(1 for handle in matched_subscriptions(self.writer)
                               if self.key is None or not self._local(handle))
         return self._count
 
@@ -314,7 +315,7 @@ class LocalWriters:
             return self._shared_writer
         self._next_look = now + WRITER_LOOK_S
         try:
-            handles = tuple(self.reader.get_matched_publications())
+            handles = tuple(matched_publications(self.reader))
         except Exception:  # the reader is being deleted
             return "unknown"
         if handles != self._matched:

@@ -32,6 +32,7 @@ from automotive.bus.endpoints import wait_for_acks
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import PropertyKeys
 from automotive.bus.stats import Every
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.tools.flows import Flow, select, system_flows
 from automotive.wire.rawsample import RawSample, RawWriter, SampleKind
 
@@ -163,7 +164,7 @@ def wait_for_readers(app: Application, writers: list[RawWriter], minimum: int) -
         return True
     app.log.info("waiting for %d reader(s) on every topic", minimum)
     while app.running:
-        if all(len(writer.writer.get_matched_subscriptions()) >= minimum for writer in writers):
+        if all(len(matched_subscriptions(writer.writer)) >= minimum for writer in writers):
             return True
         app.stop_event.wait(0.05)  # polling a status of remote readers
     return False
