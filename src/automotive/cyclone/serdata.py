@@ -59,12 +59,9 @@ class Taken:
 
 def take(reader: DataReader[Any], limit: int) -> list[Taken]:
     """Take up to ``limit`` samples of any state, as CDR bytes."""
-    clayer = _c_layer()
-    if clayer is not None:
-        result = clayer.ddspy_take(reader._ref, ANY_STATE, limit)
-        if isinstance(result, int):
-            raise DDSException(result, f"Occurred while taking serialized samples in {reader!r}")
-        return [Taken(serialized, info) for serialized, info in result]
+    fetched = fetch(reader, True, limit)
+    if fetched is not None:
+        return [Taken(serialized, info) for serialized, info in fetched]
     taken = []
     for sample in reader.take(N=limit):
         if sample.sample_info.valid_data:
