@@ -344,17 +344,16 @@ def deferred_bookkeeping() -> Iterator[Callable[[], None]]:
 
 
 def record_latencies(topic: str, samples: tuple[Any, ...] | list[Any], writer_names: WriterNames,
-                     now_ns: int | None = None) -> None:
+                     now_ns: int) -> None:
     """Record the latency of the samples of one take (automotive.bus.latency.recent), per writer participant, with
-    one clock read (``now_ns``: the take's, else now)."""
-    now = time.time_ns() if now_ns is None else now_ns
+    one clock read: ``now_ns``, the take's."""
     by_writer: dict[int, list[int]] = {}
     for sample in samples:
         info = sample.sample_info
         if info.valid_data:
             by_writer.setdefault(info.publication_handle, []).append(info.source_timestamp)
     for handle, stamps in by_writer.items():
-        latency.recent.record(topic, writer_names.participant(handle), stamps, now)
+        latency.recent.record(topic, writer_names.participant(handle), stamps, now_ns)
 
 
 def ended_instance(key: Any, info: Any) -> InvalidSample:
