@@ -23,6 +23,7 @@ from automotive.bus.badsamples import BadSample, BadSampleError, BadSampleReport
 from automotive.bus.checkedreader import CheckedReader, decoder, set_decoder
 from automotive.bus.endpoints import Databus
 from automotive.cyclone import logsink
+from automotive.cyclone.matched import matched_publications
 from automotive.sim.scene import LidarScene, ScanGrid
 from automotive.tools.cloudview import render_png
 from automotive.types.automotive import ShapeType
@@ -274,7 +275,7 @@ def test_one_bad_sample_never_loses_the_good_ones_of_its_batch(bus: Databus) -> 
     report = BadSampleReporter(log, timer=False)
     writer = DataWriter(bus.publisher, bus.topic("Circle", ShapeType))
     reader = CheckedReader(bus.subscriber, bus.topic("Circle", ShapeType), reporter=report)
-    wait_until(lambda: bool(reader.get_matched_publications()), what="the reader to match")
+    wait_until(lambda: bool(matched_publications(reader)), what="the reader to match")
     raw = RawWriter(writer)
     raw.write(raw_shape(b"GREEN", 10, 20, 30))
     raw.write(raw_shape(b"\xff\xfeBAD"))  # not UTF-8: Cyclone Python's own take raises UnicodeDecodeError
@@ -306,7 +307,7 @@ def test_a_raw_reader_skips_and_reports_a_key_it_cannot_decode(bus: Databus) -> 
     report = BadSampleReporter(log, timer=False)
     writer = DataWriter(bus.publisher, bus.topic("Circle", ShapeType))
     reader = CheckedReader(bus.subscriber, bus.topic("Circle", ShapeType), reporter=report)
-    wait_until(lambda: bool(reader.get_matched_publications()), what="the reader to match")
+    wait_until(lambda: bool(matched_publications(reader)), what="the reader to match")
     raw = RawWriter(writer)
     taker = RawReader(reader, zero_copy=False)  # the recorder's and the bridge's take: bytes, never decoded
     raw.write(raw_shape(b"\xff\xfeBAD"))

@@ -19,6 +19,7 @@ from test_record import VISION, cloud, wire
 from websockets.sync.client import ClientConnection, connect
 
 from automotive.bus.endpoints import Databus
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.sim.lfsr import FramePattern
 from automotive.tools.flows import flows_with_diagnostics
 from automotive.types.CameraImage import CameraImageData
@@ -73,7 +74,7 @@ def test_channels_and_payloads_over_the_foxglove_protocol(apps, bus: Databus, do
         lidar = bus.writer("rt/LidarTopic", PointCloud2_, "Lidar")
         for topic in ("VisionTopic", "rt/LidarTopic"):
             bridge.wait_for(rf"\[{re.escape(topic)}\] reader matched a writer", timeout=TIMEOUT)
-        wait_until(lambda: bool(vision.get_matched_subscriptions() and lidar.get_matched_subscriptions()), TIMEOUT,
+        wait_until(lambda: bool(matched_subscriptions(vision) and matched_subscriptions(lidar)), TIMEOUT,
                    "the bridge's readers")
         before = time.time_ns()
         lidar.write(cloud())
@@ -109,7 +110,7 @@ def test_a_stuck_client_costs_bounded_memory(apps, bus: Databus, domain_id: int)
     bridge, port = start_bridge(apps, domain_id, "--topics", "CameraImageData", "-D", f"config.backlog={backlog}")
     writer = FrameWriter(bus.writer("CameraImageData", CameraImageData, "Camera"), FramePattern(4196352))
     bridge.wait_for(r"\[CameraImageData\] reader matched a writer", timeout=TIMEOUT)
-    wait_until(lambda: bool(writer.writer.get_matched_subscriptions()), TIMEOUT, "the bridge's camera reader")
+    wait_until(lambda: bool(matched_subscriptions(writer.writer)), TIMEOUT, "the bridge's camera reader")
     # max_queue=1: the client library stops reading the socket once it holds one unread message, as a stuck
     # Foxglove would; the kernel's socket buffers fill, then the bridge's per-client backlog.
     with connect(f"ws://127.0.0.1:{port}", subprotocols=[SUBPROTOCOL], max_size=None, max_queue=1) as client:

@@ -37,6 +37,7 @@ from automotive.bus.endpoints import Databus
 from automotive.cyclone import bounds, codec_hook, codecgen, fastpath
 from automotive.cyclone.bounds import BoundError
 from automotive.cyclone.codecs import Codec, CodecError, codec_for, codecs
+from automotive.cyclone.matched import matched_publications, matched_subscriptions
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.Sensor import SENSOR_OBJECT_LIST_MAX_SIZE, RangeModeEnum, SensorObject, SensorObjectList
@@ -462,7 +463,7 @@ def test_writers_and_readers_use_the_codecs_over_dds(bus: Databus, monkeypatch: 
 
     writer = bus.writer("SensorObjects", SensorObjectList, "SensorFusion")
     reader = bus.reader("SensorObjects", SensorObjectList, "SensorFusion")
-    wait_until(lambda: bool(reader.get_matched_publications()), what="the reader to match")
+    wait_until(lambda: bool(matched_publications(reader)), what="the reader to match")
     monkeypatch.setattr(StructMachine, "serialize", refuse)
     monkeypatch.setattr(StructMachine, "deserialize", refuse)
     sample = SensorObjectList(timestamp=POSIXTimestamp(s=1, ns=2), objects=[sensor_object(i) for i in range(128)])
@@ -514,7 +515,7 @@ def test_raw_samples_decode_with_views(bus: Databus) -> None:
     """The per-sample decode step of a raw take: bytes -> dataclass, or numpy views."""
     writer = bus.writer("VisionTopic", VisionSensor, "Vision")
     reader = RawReader(bus.reader("VisionTopic", VisionSensor, "Vision"))
-    wait_until(lambda: bool(reader.reader.get_matched_publications()), what="the reader to match")
+    wait_until(lambda: bool(matched_publications(reader.reader)), what="the reader to match")
     sample = VisionSensor(id=3, timestamp=POSIXTimestamp(s=1, ns=2), objects=[vision_object(i) for i in range(10)])
     writer.write(sample)
     taken: list[Any] = []
@@ -671,7 +672,7 @@ def test_checked_reader_gives_views(bus: Databus) -> None:
     writer = bus.writer("VisionTopic", VisionSensor, "Vision")
     reader = bus.reader("VisionTopic", VisionSensor, "Vision")
     reader.use_views()  # type: ignore[attr-defined]
-    wait_until(lambda: bool(writer.get_matched_subscriptions()), what="the writer to match")
+    wait_until(lambda: bool(matched_subscriptions(writer)), what="the writer to match")
     sample = VisionSensor(id=3, timestamp=POSIXTimestamp(s=1, ns=2), objects=[vision_object(i) for i in range(4)])
     writer.write(sample)
     taken = take_samples(reader, 1)

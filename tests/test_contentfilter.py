@@ -27,6 +27,7 @@ from automotive.bus.checkedreader import CheckedReader
 from automotive.bus.contentfilter import MAX_DEPTH, ContentFilter, FilteredReader, FilterError, evaluate
 from automotive.bus.endpoints import Databus
 from automotive.cyclone.codecs import codec_for
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.types.automotive import ShapeType
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.shape import ShapeType as SuiteShapeType
@@ -200,7 +201,7 @@ def test_filtered_reader_returns_matching_data_and_the_end_of_seen_instances(bus
     reader = bus.reader("Circle", ShapeType, "Shapes", content_filter=predicate, overrides=RELIABLE_KEEP_ALL)
     raw = FilteredRawReader(bus.reader("Circle", ShapeType, "Shapes", overrides=RELIABLE_KEEP_ALL), predicate)
     writer = bus.writer("Circle", ShapeType, "Shapes")
-    wait_until(lambda: len(writer.get_matched_subscriptions()) == 2, what="both readers matched")
+    wait_until(lambda: len(matched_subscriptions(writer)) == 2, what="both readers matched")
     for number, x in enumerate((10, 200, 20)):
         writer.write(circle(f"RED{number}", x))
         writer.write(circle(f"BLUE{number}", x))
@@ -227,7 +228,7 @@ def test_take_returns_n_matches_when_they_are_there(bus: Databus) -> None:
     predicate = ContentFilter.parse("x >= 300").bind(ShapeType)
     reader = bus.reader("Circle", ShapeType, "Shapes", content_filter=predicate, overrides=RELIABLE_KEEP_ALL)
     writer = bus.writer("Circle", ShapeType, "Shapes")
-    wait_until(lambda: bool(writer.get_matched_subscriptions()), what="the reader matched")
+    wait_until(lambda: bool(matched_subscriptions(writer)), what="the reader matched")
     for x in range(310):
         writer.write(circle("RED", x))  # one instance, taken in the order written (the reader keeps 256 instances)
     assert isinstance(reader, FilteredReader)
@@ -245,7 +246,7 @@ def test_filtered_readers_still_leave_out_bad_samples(bus: Databus, capfd: pytes
     raw = FilteredRawReader(bus.reader("Circle", ShapeType, "Shapes", overrides=RELIABLE_KEEP_ALL), predicate)
     # A plain DataWriter: the bus's own writers are not where a bad sample comes from
     writer: DataWriter[ShapeType] = DataWriter(bus.participant, bus.topic("Circle", ShapeType))
-    wait_until(lambda: len(writer.get_matched_subscriptions()) == 2, what="both readers matched")
+    wait_until(lambda: len(matched_subscriptions(writer)) == 2, what="both readers matched")
     writer.write(circle("FAR", 5000))
     writer.write(circle("RED", 200))
     writer.write(circle("BLUE", 50))
@@ -267,7 +268,7 @@ def test_a_disposal_that_comes_with_a_sample_the_filter_leaves_out_still_arrives
     predicate = ContentFilter.parse("x < 100").bind(ShapeType)
     reader = bus.reader("Circle", ShapeType, "Shapes", content_filter=predicate, overrides=RELIABLE_KEEP_ALL)
     writer = bus.writer("Circle", ShapeType, "Shapes")
-    wait_until(lambda: bool(writer.get_matched_subscriptions()), what="the reader matched")
+    wait_until(lambda: bool(matched_subscriptions(writer)), what="the reader matched")
     writer.write(circle("RED", 10))
     assert [sample.color for sample in take_samples(reader, 1)] == ["RED"]
     writer.write(circle("RED", 200))
@@ -293,7 +294,7 @@ def test_a_filtered_reader_of_numpy_views(bus: Databus) -> None:
     reader.use_views()
     raw = FilteredRawReader(bus.reader("VisionTopic", VisionSensor, "Vision", overrides=RELIABLE_KEEP_ALL), predicate)
     writer = bus.writer("VisionTopic", VisionSensor, "Vision", overrides=RELIABLE_KEEP_ALL)
-    wait_until(lambda: len(writer.get_matched_subscriptions()) == 2, what="both readers matched")
+    wait_until(lambda: len(matched_subscriptions(writer)) == 2, what="both readers matched")
     writer.write(dataclasses.replace(VISION, id=4, objects=[dataclasses.replace(
         VISION.objects[0], classification=ClassificationEnum.CLASSIFICATION_BIKE)]))
     writer.write(dataclasses.replace(VISION, id=5))
@@ -313,7 +314,7 @@ def test_sensor_fusion_with_a_filter_on_its_vision_views(apps: Any, domain_id: i
     fusion = apps.start("sensor_fusion", "--domain", str(domain_id), "-D", "config.mode=event",
                         "--filter", "VisionTopic=objects[0].classification = CLASSIFICATION_CAR")
     writer = bus.writer("VisionTopic", VisionSensor, "Vision")
-    wait_until(lambda: bool(writer.get_matched_subscriptions()), TIMEOUT, "sensor_fusion's reader")
+    wait_until(lambda: bool(matched_subscriptions(writer)), TIMEOUT, "sensor_fusion's reader")
     # Event mode fuses what each wake-up takes: one list may hold samples of several sensors ("of sensor(s) 7,8").
     def listed(sensor: int) -> str:
         return (r"published list \d+: \d+ object\(s\) from \d+ vision sample\(s\) of sensor\(s\) "

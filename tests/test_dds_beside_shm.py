@@ -28,6 +28,7 @@ from shm_helpers import files_of
 from automotive.bus import checkedreader
 from automotive.bus import stats as records
 from automotive.bus.checkedreader import CheckedReader
+from automotive.cyclone.matched import matched_publications, matched_subscriptions
 from automotive.sim.lfsr import FramePattern
 from automotive.tools.support.children import program_command
 from automotive.types.automotive import ShapeType
@@ -70,7 +71,7 @@ def test_a_checked_reader_drops_the_samples_of_skipped_writers_before_decoding_t
         reader.skip_writers(shm.LocalWriters(reader, key).is_local)
         local = bus.writer("Circle", ShapeType, "Shapes", overrides=(mark,))
         other = bus.writer("Circle", ShapeType, "Shapes")
-        wait_until(lambda: len(reader.get_matched_publications()) == 2, what="both writers matched")
+        wait_until(lambda: len(matched_publications(reader)) == 2, what="both writers matched")
         for x in range(5):
             local.write(ShapeType(color="LOCAL", x=x, y=0, shapesize=1))
         other.write(ShapeType(color="OTHER", x=1, y=2, shapesize=3))
@@ -88,7 +89,7 @@ def test_a_camera_frame_is_the_same_bytes_and_source_timestamp_on_dds_as_in_shar
     try:
         writer = bus.writer("CameraImageData_64KiB", CameraImageData_64KiB, "Camera")
         raw = RawReader(bus.reader("CameraImageData_64KiB", CameraImageData_64KiB, "Camera"), zero_copy=False)
-        wait_until(lambda: bool(writer.get_matched_subscriptions()), what="the reader matched")
+        wait_until(lambda: bool(matched_subscriptions(writer)), what="the reader matched")
         frames = FrameWriter(writer, FramePattern(65536))
         shared = bytearray(frames.serialized_length)
         stamp = frames.build_pattern_frame(memoryview(shared), 3, 41)  # what goes into the loan

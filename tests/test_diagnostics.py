@@ -34,6 +34,7 @@ from test_bridge import start_bridge
 
 from automotive.bus.diagnostics import ERROR, OK, WARN, EndpointState, Problem, assess
 from automotive.bus.endpoints import Databus
+from automotive.cyclone.matched import matched_publications, matched_subscriptions
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.diagnostic_msgs.msg.dds_ import DiagnosticArray_
 from automotive.types.Platform import PlatformControl
@@ -99,8 +100,8 @@ def values(status: Any) -> dict[str, str]:
 def test_a_running_application_reports_once_a_second_as_ros2_reads_it(  # type: ignore[no-untyped-def]
         apps, domain_id: int, diagnostics: DiagnosticsReader) -> None:
     vision = apps.start("vision", "--domain", str(domain_id))
-    wait_until(lambda: len(diagnostics.reader.get_matched_publications()) == 1, TIMEOUT, "the vision's diagnostics")
-    [handle] = diagnostics.reader.get_matched_publications()
+    wait_until(lambda: len(matched_publications(diagnostics.reader)) == 1, TIMEOUT, "the vision's diagnostics")
+    [handle] = matched_publications(diagnostics.reader)
     writer = diagnostics.reader.get_matched_publication_data(handle)
     assert writer.type_name == DDS_TYPE
     assert Policy.Reliability.Reliable in writer.qos and Policy.Durability.Volatile in writer.qos
@@ -166,7 +167,7 @@ def test_the_hmi_warns_without_an_alert_writer_is_ok_with_one_and_errs_when_it_i
     try:
         alerts = DataWriter(source, Topic(source, "AlertTopic", DriverAlerts), qos=bus.profiles.writer_qos(
             bus.library, "HMI"))
-        wait_until(lambda: bool(alerts.get_matched_subscriptions()), TIMEOUT, "the HMI's alert reader")
+        wait_until(lambda: bool(matched_subscriptions(alerts)), TIMEOUT, "the HMI's alert reader")
         alerts.write(DriverAlerts(False, False, False, False, False, False))
         ok = diagnostics.status_of("hmi", lambda status: status.level == OK and "all clear" in status.message,
                                    what="OK and all clear")
@@ -303,4 +304,4 @@ def test_two_command_writers_of_one_vehicle_are_warned_on_the_console_and_in_dia
     platform.wait_for(r"one command writer on PlatformControl again")
     diagnostics.status_of("vehicle_platform", lambda status: "command writers" not in status.message,
                           what="without the warning")
-    assert first.get_matched_subscriptions()
+    assert matched_subscriptions(first)

@@ -28,6 +28,7 @@ from test_system import scene
 from automotive import config
 from automotive.bus import stats
 from automotive.bus.qos import QosProfiles
+from automotive.cyclone.matched import matched_publications
 
 PRIMARY, BACKUP = 20, 10
 OWNER_LINE = r"\[{topic}\] owner changed: {old} \(strength {old_strength}\) -> {new} \(strength {new_strength}\)"
@@ -427,5 +428,5 @@ def test_outside_reader_follows_redundant_mode_with_exclusive_ownership_only(bus
     exclusive_qos = DataReaderQos(Policy.Ownership.Exclusive, base=default_qos)
     following = DataReader(bus.subscriber, topic_entity, qos=exclusive_qos)
     shared = DataReader(bus.subscriber, topic_entity, qos=default_qos)
-    wait_until(lambda: len(following.get_matched_publications()) == 1, what="the exclusive reader's match")
-    assert shared.get_matched_publications() == []  # the default system's shared reader: incompatible OWNERSHIP
+    wait_until(lambda: len(matched_publications(following)) == 1, what="the exclusive reader's match")
+    assert matched_publications(shared) == []  # the default system's shared reader: incompatible OWNERSHIP

@@ -17,6 +17,7 @@ from dds_helpers import take_samples, wait_until
 
 from automotive.bus.endpoints import Databus
 from automotive.cyclone import gate
+from automotive.cyclone.matched import matched_publications
 from automotive.tools.flows import system_flows
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.CameraImage import CameraImageData_64KiB
@@ -107,7 +108,7 @@ def test_raw_samples_through_the_public_api(bus: Databus, gate_closed: None) -> 
     reader = bus.reader("VisionTopic", VisionSensor, "Vision")
     raw_reader = RawReader(reader)
     assert not raw_reader.zero_copy  # no lent buffers: taken with a copy
-    wait_until(lambda: bool(reader.get_matched_publications()), what="the reader to match the writer")
+    wait_until(lambda: bool(matched_publications(reader)), what="the reader to match the writer")
     sample = vision(7)
     writer.write(sample, timestamp=1_700_000_000_000_000_123)
     writer.dispose(vision(7))
@@ -122,7 +123,7 @@ def test_raw_samples_through_the_public_api(bus: Databus, gate_closed: None) -> 
     # Writing serialized samples back: data with its timestamp, then the disposal and an unregistration.
     out_writer = RawWriter(bus.writer("VisionReplay", VisionSensor, "Vision"))
     out_reader = bus.reader("VisionReplay", VisionSensor, "Vision")
-    wait_until(lambda: bool(out_reader.get_matched_publications()), what="the replay reader to match")
+    wait_until(lambda: bool(matched_publications(out_reader)), what="the replay reader to match")
     out_writer.write(taken[0].data, timestamp=1_700_000_000_000_000_456)
     [received] = take_samples(out_reader, 1)
     assert received == sample and received.sample_info.source_timestamp == 1_700_000_000_000_000_456

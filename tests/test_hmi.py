@@ -18,6 +18,7 @@ from dds_helpers import make_bus, wait_until
 from display_helpers import free_x_display, run_without_display
 
 from automotive import config
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.types.Alerts import DriverAlerts
 
 CLEAR = dict(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False, backCollision=False,
@@ -64,7 +65,7 @@ def test_console_alert_box_with_a_text_per_flag(apps, domain_id: int) -> None:  
     writer = bus.writer("AlertTopic", DriverAlerts, "HMI")
     hmi = apps.start("hmi", "--ui", "console", "--domain", str(domain_id))
     hmi.wait_for("waiting for alerts")
-    wait_until(lambda: len(writer.get_matched_subscriptions()) == 1, what="the HMI's reader")
+    wait_until(lambda: len(matched_subscriptions(writer)) == 1, what="the HMI's reader")
     writer.write(alert(frontCollision=True, blindSpotPassenger=True))
     hmi.wait_for(r"DRIVER ALERT: Vehicle in the blind spot, passenger side; Front collision warning")
     hmi.wait_for(r"=\+ Vehicle in the blind spot, passenger side \| Front collision warning$")
@@ -158,7 +159,7 @@ def test_window_shows_the_alert_box(apps, domain_id: int, virtual_display: str, 
     writer = bus.writer("AlertTopic", DriverAlerts, "HMI")
     hmi = apps.start("hmi", "--ui", "window", "--domain", str(domain_id), env={"DISPLAY": virtual_display})
     hmi.wait_for("HMI: window alert box")
-    wait_until(lambda: len(writer.get_matched_subscriptions()) == 1, what="the HMI's reader")
+    wait_until(lambda: len(matched_subscriptions(writer)) == 1, what="the HMI's reader")
     writer.write(alert(driverAttention=True, backCollision=True))
     hmi.wait_for("DRIVER ALERT")
     wait_until(lambda: "HMI - DRIVER ALERT" in window_names(virtual_display), what="the alert window title")

@@ -36,6 +36,7 @@ from mcap.writer import Writer
 from automotive import config
 from automotive.bus.endpoints import Databus
 from automotive.bus.qos import WRITER_REPRESENTATION, QosProfiles
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.sim.scene import SHAPE_RGB, LidarScene, ScanGrid
 from automotive.tools.flows import channel_metadata, system_flows
 from automotive.types.Alerts import DriverAlerts
@@ -109,7 +110,7 @@ def not_utf8(sample: Any, text: str, replacement: bytes) -> bytes:
 
 
 def matched(writer: DataWriter[Any], readers: int = 1) -> None:
-    wait_until(lambda: len(writer.get_matched_subscriptions()) >= readers, TIMEOUT, "the application's reader")
+    wait_until(lambda: len(matched_subscriptions(writer)) >= readers, TIMEOUT, "the application's reader")
 
 
 def write_until(process: Any, pattern: str, write: Callable[[], Any]) -> None:

@@ -22,6 +22,7 @@ from PIL import Image
 
 from automotive.bus.endpoints import Databus
 from automotive.bus.qos import WRITER_REPRESENTATION
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.sim.scene import BACKGROUND_RGB, GROUND_RGB, SHAPE_RGB
 from automotive.tools.cloudview import CloudFigure
 from automotive.types.automotive import ShapeType
@@ -72,7 +73,7 @@ def test_disposed_shape_and_shape_without_writers_disappear(apps, domain_id: int
                         qos=Qos(Policy.Reliability.Reliable(duration(milliseconds=100)),
                                 Policy.WriterDataLifecycle(autodispose=False), WRITER_REPRESENTATION))
     lidar = apps.start("lidar", *domain_args(domain_id), "-D", "config.noise=0")
-    wait_until(lambda: len(writer.get_matched_subscriptions()) == 1 and len(keeper.get_matched_subscriptions()) == 1,
+    wait_until(lambda: len(matched_subscriptions(writer)) == 1 and len(matched_subscriptions(keeper)) == 1,
                what="the LiDAR's Circle reader")
     writer.write(ShapeType("GREEN", *circle(4, 0), 60))  # radius 1 m, centre 1 m up, 4 m ahead along +x
     keeper.write(ShapeType("RED", *circle(0, -4), 60))  # 4 m along -y

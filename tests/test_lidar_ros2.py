@@ -20,6 +20,7 @@ from cyclonedds.topic import Topic
 from dds_helpers import wait_until
 from rosbags.typesys import Stores, get_typestore
 
+from automotive.cyclone.matched import matched_publications
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
 from automotive.wire.pointcloud import decode_point_cloud2
 
@@ -42,7 +43,7 @@ def test_lidar_clouds_decode_as_ros2_point_cloud2_every_field_equal(apps, domain
     try:
         reader = DataReader(participant, Topic(participant, "rt/LidarTopic", PointCloud2_), qos=RVIZ2_READER)
         lidar = apps.start("lidar", "--domain", str(domain_id))
-        wait_until(lambda: len(reader.get_matched_publications()) == 1, timeout=30, what="the LiDAR writer")
+        wait_until(lambda: len(matched_publications(reader)) == 1, timeout=30, what="the LiDAR writer")
         raw = take_serialized(reader, 2)
     finally:
         participant.__del__()

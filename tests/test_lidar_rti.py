@@ -24,6 +24,7 @@ from lidar_helpers import Clouds, circle, points_of, with_colour
 from rti_peer import RTI_XML, RtiPeer
 
 from automotive.bus.endpoints import Databus
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.sim.scene import SHAPE_RGB, LidarScene, ScanGrid
 from automotive.types.automotive import ShapeType
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
@@ -134,7 +135,7 @@ def test_rti_reader_receives_our_point_clouds_intact(apps, domain_id: int, bus: 
     writer = bus.writer("Circle", ShapeType, "Shapes")
     lidar = apps.start("lidar", "--domain", str(domain_id), "-D", "config.noise=0",
                        "-D", f"qos.Lidar.Profile={our_profile}")
-    wait_until(lambda: len(writer.get_matched_subscriptions()) == 1, what="the LiDAR's Circle reader")
+    wait_until(lambda: len(matched_subscriptions(writer)) == 1, what="the LiDAR's Circle reader")
     writer.write(ShapeType("GREEN", *circle(-2, 3), 75))
     lidar.wait_for(r"shape GREEN appeared")
     # Without noise the LiDAR's frames of this scene are exactly what the same scene renders here.

@@ -45,6 +45,7 @@ from PIL import Image, ImageGrab
 from shm_helpers import files_of
 
 from automotive.bus.endpoints import Databus
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.sim.scene import BACKGROUND_RGB, GROUND_RGB, SHAPE_RGB, LidarScene, ScanGrid
 from automotive.tools.cloudview import DEFAULT_SIZE, CloudFigure
 from automotive.tools.lidar_view.lidar_view import WINDOW_TITLE, CloudRate, cloud_points, fit_to_screen, status_line
@@ -173,7 +174,7 @@ def test_status_line_keeps_its_width_and_rate_follows_the_writers_stamps(bus: Da
     writer = DataWriter(bus.publisher, topic)
     reader = DataReader(bus.participant, topic, qos=Qos(Policy.Reliability.Reliable(duration(seconds=1)),
                                                          Policy.History.KeepAll))
-    wait_until(lambda: len(writer.get_matched_subscriptions()) == 1, what="the test's reader")
+    wait_until(lambda: len(matched_subscriptions(writer)) == 1, what="the test's reader")
     scene = LidarScene(ScanGrid(azimuth_steps=8, polar_steps=4))
     start_ns = 1_700_000_000 * 10**9
     for frame in range(6):  # stamped 50 ms apart, written at once

@@ -32,6 +32,7 @@ from automotive import config
 from automotive.bus.properties import Properties
 from automotive.bus.qos import QosProfiles
 from automotive.bus.status import policy_name
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.types.Alerts import DriverAlerts
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -235,7 +236,7 @@ def test_cyclone_matches_exactly_the_pairs_the_rules_call_compatible(domain_id: 
         expected[description] = incompatible_policies(writer_qos, reader_qos)
 
     def settled() -> bool:
-        return all((len(writer.get_matched_subscriptions()) == 1) == (not expected[description]) and (
+        return all((len(matched_subscriptions(writer)) == 1) == (not expected[description]) and (
             not expected[description] or reader.get_requested_incompatible_qos_status().total_count > 0)
             for description, (writer, reader) in endpoints.items())
 
@@ -243,9 +244,9 @@ def test_cyclone_matches_exactly_the_pairs_the_rules_call_compatible(domain_id: 
         wait_until(settled, timeout=20, what="Cyclone to match or refuse every pair")
     except AssertionError:
         disagreements = [f"{description}: rules say {expected[description] or 'compatible'}, Cyclone "
-                         f"{'matched' if writer.get_matched_subscriptions() else 'refused'}"
+                         f"{'matched' if matched_subscriptions(writer) else 'refused'}"
                          for description, (writer, reader) in endpoints.items()
-                         if bool(writer.get_matched_subscriptions()) == bool(expected[description])]
+                         if bool(matched_subscriptions(writer)) == bool(expected[description])]
         raise AssertionError("; ".join(disagreements) or "Cyclone reported no incompatible QoS") from None
     for description, (_, reader) in endpoints.items():
         if expected[description]:  # Cyclone names the one policy it stopped at: one of ours

@@ -12,6 +12,7 @@ from cyclonedds.qos import DataWriterQos, Policy
 from dds_helpers import take_samples, wait_until
 
 from automotive.bus.endpoints import Databus
+from automotive.cyclone.matched import matched_publications
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.Vision import VisionObject, VisionSensor
@@ -41,7 +42,7 @@ def matched(bus: Databus, topic: str, data_type: type[Any], writer_qos: DataWrit
     else:
         writer = DataWriter(bus.publisher, bus.topic(topic, data_type), qos=writer_qos)
     reader = bus.reader(topic, data_type, "Vision")
-    wait_until(lambda: bool(reader.get_matched_publications()), what="the reader to match the writer")
+    wait_until(lambda: bool(matched_publications(reader)), what="the reader to match the writer")
     return writer, reader
 
 
@@ -54,7 +55,7 @@ def test_take_gives_the_wire_bytes_timestamp_and_writer(bus: Databus) -> None:
     assert bytes(taken.data) == sample.serialize(use_version_2=False)  # XCDR1, header included
     assert taken.source_timestamp == 1_700_000_000_123_456_789
     assert taken.writer == writer.instance_handle
-    assert reader.get_matched_publications() == [writer.instance_handle]
+    assert matched_publications(reader) == [writer.instance_handle]
     assert taken.instance_state == InstanceState.Alive
 
 
@@ -127,7 +128,7 @@ def test_raw_writer_writes_disposes_and_unregisters_without_serializing(bus: Dat
 def test_keyless_disposal_becomes_a_default_sample(bus: Databus) -> None:
     writer = bus.writer("AlertTopic", DriverAlerts, "HMI")
     reader = bus.reader("AlertTopic", DriverAlerts, "HMI")
-    wait_until(lambda: bool(reader.get_matched_publications()), what="the alert reader to match")
+    wait_until(lambda: bool(matched_publications(reader)), what="the alert reader to match")
     alert = DriverAlerts(blindSpotDriver=True, blindSpotPassenger=False, frontCollision=False, backCollision=False,
                          parkingCollision=False, driverAttention=True)
     raw = RawReader(reader)

@@ -25,6 +25,7 @@ from mcap.writer import CompressionType, Writer
 from rosbags.highlevel import AnyReader
 
 from automotive.bus.endpoints import Databus
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.sim.scene import LidarScene, ScanGrid
 from automotive.tools.flows import system_flows
 from automotive.tools.record.record import EXIT_WRITE_FAILED, file_end, index_chunks
@@ -65,7 +66,7 @@ def matched_writer(bus: Databus, recorder: Any, topic: str, data_type: type[Any]
     """A writer matched both ways with the recorder's reader (a best-effort sample written before the reader
     matched the writer would be lost)."""
     writer = bus.writer(topic, data_type, profile)
-    wait_until(lambda: bool(writer.get_matched_subscriptions()), TIMEOUT, f"the recorder to match {topic}")
+    wait_until(lambda: bool(matched_subscriptions(writer)), TIMEOUT, f"the recorder to match {topic}")
     recorder.wait_for(rf"\[{re.escape(topic)}\] reader matched a writer", timeout=TIMEOUT)
     return writer
 

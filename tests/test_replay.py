@@ -25,6 +25,7 @@ from test_system import CAR, HEADER, TRUCK, vision_row
 
 from automotive import config
 from automotive.bus.endpoints import Databus
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
@@ -114,7 +115,7 @@ def test_an_rti_reader_receives_replayed_samples_as_live_ones(apps, bus: Databus
     recorder = apps.start("record", "--domain", str(domain_id), "--output", str(drive), "--topics", "VisionTopic")
     with RtiPeer(domain_id, readers=["Vision"]) as peer:
         writer = bus.writer("VisionTopic", VisionSensor, "Vision")
-        wait_until(lambda: len(writer.get_matched_subscriptions()) >= 2, TIMEOUT, "the recorder and RTI to match")
+        wait_until(lambda: len(matched_subscriptions(writer)) >= 2, TIMEOUT, "the recorder and RTI to match")
         recorder.wait_for(r"\[VisionTopic\] reader matched a writer", timeout=TIMEOUT)
         peer.wait_for_writers("Vision", timeout=TIMEOUT)
         # Sample 0 opens the recording; the others follow a second later, when replayed too: by then the RTI reader

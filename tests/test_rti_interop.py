@@ -25,6 +25,7 @@ from rti_peer import RtiPeer
 
 from automotive.bus.endpoints import Databus
 from automotive.bus.qos import READER_REPRESENTATION, WRITER_REPRESENTATION
+from automotive.cyclone.matched import matched_publications, matched_subscriptions
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.automotive import ShapeType
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
@@ -57,7 +58,7 @@ def test_rti_shapes_writer_reaches_our_shape_reader(bus: Databus, domain_id: int
     reader = DataReader(bus.subscriber, bus.topic("Circle", ShapeType), qos=qos)
     with RtiPeer(domain_id, writers=["Circle"]) as peer:
         peer.wait_for_readers("Circle")
-        wait_until(lambda: len(reader.get_matched_publications()) == 1, what="our reader to match the RTI writer")
+        wait_until(lambda: len(matched_publications(reader)) == 1, what="our reader to match the RTI writer")
         shapes = [("BLUE", 10, 20, 30), ("RED", 200, 100, 45), ("GREEN", 0, 255, 60)]
         for color, x, y, size in shapes:
             peer.write("Circle", {"color": color, "x": x, "y": y, "shapesize": size, "fillKind": 2, "angle": 33.5})
@@ -72,7 +73,7 @@ def test_rti_dispose_of_a_shape_reaches_our_reader(bus: Databus, domain_id: int)
     reader = DataReader(bus.subscriber, bus.topic("Circle", ShapeType), qos=qos)
     with RtiPeer(domain_id, writers=["Circle"]) as peer:
         peer.wait_for_readers("Circle")
-        wait_until(lambda: len(reader.get_matched_publications()) == 1, what="our reader to match the RTI writer")
+        wait_until(lambda: len(matched_publications(reader)) == 1, what="our reader to match the RTI writer")
         peer.write("Circle", {"color": "ORANGE", "x": 5, "y": 6, "shapesize": 40})
         assert [s.color for s in take_samples(reader, 1)] == ["ORANGE"]
         output = peer.output("Circle")
@@ -112,7 +113,7 @@ def test_our_vision_writer_reaches_rti_reader_with_objects(bus: Databus, domain_
     sample = vision_sample(4242)
     with RtiPeer(domain_id, readers=["Vision"]) as peer:
         peer.wait_for_writers("Vision")
-        wait_until(lambda: len(writer.get_matched_subscriptions()) == 1, what="our writer to match the RTI reader")
+        wait_until(lambda: len(matched_subscriptions(writer)) == 1, what="our writer to match the RTI reader")
         received = _write_until_received(lambda: writer.write(sample),
                                          lambda: peer.take_until("Vision", 1, timeout=0.2,
                                                                  accept=lambda s: s["id"] == 4242))
@@ -124,7 +125,7 @@ def test_rti_vision_writer_reaches_our_vision_reader(bus: Databus, domain_id: in
     reader = bus.reader("VisionTopic", VisionSensor, "Vision")
     with RtiPeer(domain_id, writers=["Vision"]) as peer:
         peer.wait_for_readers("Vision")
-        wait_until(lambda: len(reader.get_matched_publications()) == 1, what="our reader to match the RTI writer")
+        wait_until(lambda: len(matched_publications(reader)) == 1, what="our reader to match the RTI writer")
         received = _write_until_received(lambda: peer.write("Vision", VISION_RTI),
                                          lambda: [s for s in take_samples(reader, 1, timeout=0.2) if s.id == 4711])
     assert vision_as_dict(received) == VISION_RTI

@@ -47,6 +47,7 @@ from test_network_config import LOOPBACK_AND_PEER, effective, tracing
 from automotive.bus.endpoints import Databus
 from automotive.bus.ports import check_domain_id
 from automotive.bus.qos import WRITER_REPRESENTATION
+from automotive.cyclone.matched import matched_subscriptions
 from automotive.tools.shapes.shape_main import parse_options
 from automotive.tools.support import netlab
 from automotive.types.shape import ShapeType as SuiteShapeType
@@ -238,7 +239,7 @@ def test_a_bad_colour_whose_instance_then_ends_is_reported_and_the_subscriber_go
     subscriber = apps.start("shape_main", "-S", "-t", "Square", "-d", str(domain_id))
     writer: DataWriter[SuiteShapeType] = DataWriter(bus.participant, bus.topic("Square", SuiteShapeType),
                                                     qos=Qos(Policy.Reliability.Reliable(0), WRITER_REPRESENTATION))
-    wait_until(lambda: bool(writer.get_matched_subscriptions()), 60, "the subscriber's reader")
+    wait_until(lambda: bool(matched_subscriptions(writer)), 60, "the subscriber's reader")
     raw = RawWriter(writer)
     bad = bytes(SuiteShapeType(color="BAD", x=1, y=2, shapesize=3, additional_payload_size=b"").serialize(
         use_version_2=False)).replace(b"BAD\0", b"\xff\xfe\xfd\0")
