@@ -86,3 +86,30 @@ def test_every_program_has_main_with_argv_and_a_command(module: str) -> None:
     if module.startswith("automotive.apps."):
         started = {getattr(start, value.split(":")[1]).module for value in SCRIPTS.values()}
         assert module in started, f"{module} has no console script in pyproject.toml (automotive.start)"
+
+
+RACY_CALLS = ("get_matched_subscriptions", "get_matched_publications")
+
+
+def racy_calls(path: Path) -> list[str]:
+    """Lines of ``path`` that call Cyclone's get_matched_* directly (ast: docstrings and comments do not count)."""
+    tree = ast.parse(path.read_text(), str(path))
+    return [f"{path}:{node.lineno}" for node in ast.walk(tree)
+            if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute) and node.func.attr in RACY_CALLS]
+
+
+def test_the_matched_endpoints_are_asked_only_through_automotive_cyclone_matched() -> None:
+    """Cyclone DDS Python's get_matched_* raise IndexError when an endpoint matches between its two C calls: every
+    caller, programs and tests, asks through automotive.cyclone.matched, which asks again. The race's own test calls
+    them directly on purpose."""
+    tests = Path(__file__).resolve().parent
+    allowed = {CYCLONE / "matched.py", tests / "test_runtime.py"}
+    found = [line for path in sorted([*PACKAGE.rglob("*.py"), *tests.rglob("*.py")])
+             if path not in allowed and "node_modules" not in path.parts for line in racy_calls(path)]
+    assert not found, "call automotive.cyclone.matched.matched_subscriptions/_publications instead: " + ", ".join(found)
+
+
+def test_the_racy_call_rule_sees_a_direct_call(tmp_path: Path) -> None:
+    source = tmp_path / "peer.py"
+    source.write_text('"""get_matched_subscriptions() in a docstring"""\nwriter.get_matched_subscriptions()\n')
+    assert racy_calls(source) == [f"{source}:2"]
