@@ -15,6 +15,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the tests' helper modules
 
+from domain_ids import worker_domain_ids  # noqa: E402
+
 from automotive import cyclone  # noqa: E402
 from automotive.bus.network import NetworkConfig  # noqa: E402
 
@@ -25,22 +27,6 @@ os.environ["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()
 os.environ["AUTOMOTIVE_LOG_LEVEL"] = "debug"
 # The fast paths of the test process's own endpoints, as every program switches them on when it starts.
 cyclone.start()
-
-
-# Domain ids that tests name themselves (tests/test_camera.py, test_shm.py, test_contentfilter.py, the documented
-# examples); the OMG suite's 0 and 1 run in namespaces of their own.
-NAMED_DOMAIN_IDS = {0, 1, 5, 7, 70, 71, 72, 73, 76, 77, 81}
-# Up to 100: the ports of domains from 101 up reach into the kernel's range of ephemeral ports (32768-60999), where
-# another process's socket may hold a domain's fixed discovery multicast port for a while (tests run many of them).
-TEST_DOMAIN_IDS = [domain for domain in range(2, 101) if domain not in NAMED_DOMAIN_IDS]
-
-
-def worker_domain_ids(worker: str, workers: int) -> list[int]:
-    """The domain ids of one pytest-xdist worker (``gw0``, ``gw1``...; one worker without xdist): TEST_DOMAIN_IDS
-    shared out, so that tests on two workers never meet on a domain."""
-    index = int(worker[2:]) if worker.startswith("gw") and worker[2:].isdigit() else 0
-    size = len(TEST_DOMAIN_IDS) // max(workers, 1)
-    return TEST_DOMAIN_IDS[index * size:(index + 1) * size]
 
 
 # Tests that ask for the `domain_id` fixture each get a domain id of their own (a worker's ids are used again, in turn,

@@ -28,9 +28,9 @@ DDS's a /dev/shm of the test's (tests/fastdds_peer.py private_shm), so nothing m
 host namespace reserves the ports of N-1..N+1 (no process gets one as its ephemeral port), so that each participant
 takes the index the test expects.
 
-The domain: ``module_domain_id`` (conftest: TEST_DOMAIN_IDS shared out among the workers), with N-1 and N+1 used
-as well. They may be another test's ids: it does not matter, as no datagram of this module leaves its own namespaces
-(nor any shared memory), and no other test's reaches them; the ids only need their ports (N+1 <= 231,
+The domain: ``module_domain_id`` (tests/domain_ids.py: TEST_DOMAIN_IDS shared out among the workers), with N-1 and
+N+1 used as well. They may be another test's ids: it does not matter, as no datagram of this module leaves its own
+namespaces (nor any shared memory), and no other test's reaches them; the ids only need their ports (N+1 <= 231,
 MAX_DOMAIN_ID). Needs root (network namespaces); skipped otherwise.
 """
 

@@ -36,10 +36,6 @@ from automotive.types.CameraImage import CameraImageData_64KiB
 from automotive.types.sensor_msgs.msg.dds_ import POINT_CLOUD_MAX_DATA, PointCloud2_, PointField_
 from automotive.types.std_msgs.msg.dds_ import Header_
 
-# This helper's DDS domain ids are 40-49.
-DOMAIN_LOOPBACK = 40
-DOMAIN_WIRE = 41
-
 
 @dataclass
 @annotate.final
@@ -306,10 +302,10 @@ def no_per_element_machine(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(PlainCdrV2SequenceOfPrimitiveMachine, "deserialize", refuse)
 
 
-def test_lidar_writes_and_reads_go_through_the_fast_path_over_dds(no_per_element_machine: None) -> None:
+def test_lidar_writes_and_reads_go_through_the_fast_path_over_dds(no_per_element_machine: None, domain_id: int) -> None:
     """One PointCloud2_ of 184,320 bytes from a writer to a reader of the project's Lidar profile (XCDR1)."""
     data = payload(184_320)
-    bus = make_bus(DOMAIN_LOOPBACK)
+    bus = make_bus(domain_id)
     try:
         writer = bus.writer("rt/LidarTopic", PointCloud2_, "Lidar")
         reader = bus.reader("rt/LidarTopic", PointCloud2_, "Lidar")
@@ -328,12 +324,12 @@ def test_lidar_writes_and_reads_go_through_the_fast_path_over_dds(no_per_element
 
 
 @pytest.mark.parametrize("xcdr2", [False, True], ids=["xcdr1", "xcdr2"])
-def test_dds_wire_bytes_are_those_of_the_unmodified_serializer(xcdr2: bool) -> None:
+def test_dds_wire_bytes_are_those_of_the_unmodified_serializer(xcdr2: bool, domain_id: int) -> None:
     """Raw samples taken from a reader: the encapsulation asked for, and exactly Cyclone's own serialization."""
     sample = cloud(payload(184_320))
     with unmodified():
         reference = sample.serialize(use_version_2=xcdr2)
-    participant = DomainParticipant(DOMAIN_WIRE)
+    participant = DomainParticipant(domain_id)
     try:
         topic = Topic(participant, "rt/LidarTopic", PointCloud2_)
         both = Policy.DataRepresentation(use_cdrv0_representation=True, use_xcdrv2_representation=True)

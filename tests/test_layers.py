@@ -1,6 +1,7 @@
 """The layer rules import-linter cannot express: only automotive.cyclone touches Cyclone DDS Python's private
 internals (modules whose name starts with an underscore, cyclonedds.internal, and the private attributes the fast
-paths use), and every program is a module with main(argv)."""
+paths use), every program is a module with main(argv), and the rules of the code that tests share: Cyclone's racy
+get_matched_* asked through automotive.cyclone.matched, no domain id of the tests' pool named by a test."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import importlib.metadata
 from pathlib import Path
 
 import pytest
+from domain_ids import foreign_domain_ids
 
 import automotive
 from automotive import command, start
@@ -113,3 +115,19 @@ def test_the_racy_call_rule_sees_a_direct_call(tmp_path: Path) -> None:
     source = tmp_path / "peer.py"
     source.write_text('"""get_matched_subscriptions() in a docstring"""\nwriter.get_matched_subscriptions()\n')
     assert racy_calls(source) == [f"{source}:2"]
+
+
+def test_no_test_names_a_domain_id_that_conftest_hands_out() -> None:
+    """A test's own domain comes from the domain_id fixtures; the few it may name are domain_ids.NAMED_DOMAIN_IDS."""
+    tests = Path(__file__).resolve().parent
+    found = [line for path in sorted(tests.rglob("*.py")) if "node_modules" not in path.parts
+             for line in foreign_domain_ids(path)]
+    assert not found, "take the domain_id or other_domain_id fixture instead: " + ", ".join(found)
+
+
+def test_the_domain_rule_sees_a_named_domain(tmp_path: Path) -> None:
+    source = tmp_path / "test_peer.py"
+    pooled, named, outside = 58, 7, 232  # (spelt apart, so that the rule does not see this test's own text)
+    source.write_text(f'REPLAY_DOMAIN = {pooled}\napps.start("vision", "--domain", "{named}")\n'
+                      f'bus = make_bus({pooled - 18})\napps.run("vision", "--domain", "{outside}")\n')
+    assert foreign_domain_ids(source) == [f"{source}:1: domain 58", f"{source}:3: domain 40"]

@@ -34,7 +34,6 @@ from automotive.types.Vision import VisionObject, VisionSensor
 TIMEOUT = 60.0
 ROWS = 40
 TALL_ROWS = (range(10, 14), range(25, 29))  # a truck taller than 2 m leads twice: two alerts, two all-clears
-REPLAY_DOMAIN = 58  # the replay's own domain, apart from the live drive's
 EVENT_FUSION = ["-D", "config.mode=event"]  # one object list per vision sample
 
 
@@ -75,8 +74,10 @@ def decision_apps(apps: Any, domain: list[str]) -> list[Any]:
     return [fusion, avoidance]
 
 
-def test_replayed_drive_gives_the_recorded_alerts(apps, domain_id: int, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
-    live, replayed = ["--domain", str(domain_id)], ["--domain", str(REPLAY_DOMAIN)]
+def test_replayed_drive_gives_the_recorded_alerts(apps, domain_id: int, other_domain_id: int,  # type: ignore[no-untyped-def]
+                                                  tmp_path: Path) -> None:
+    # The replay on a domain of its own, apart from the live drive's (and from every other test's)
+    live, replayed = ["--domain", str(domain_id)], ["--domain", str(other_domain_id)]
     drive = tmp_path / "drive.mcap"
     recorder = apps.start("record", *live, "--output", str(drive), "--topics", "VisionTopic,AlertTopic")
     _, avoidance = decision_apps(apps, live)
