@@ -178,6 +178,14 @@ def test_malformed_platform_row_is_reported_and_skipped(tmp_path: Path, bad_line
     assert rows == [PlatformRow(12.5, 0.01, 45.0, 30.0), PlatformRow(13.0, -0.02, 46.8, 35.0)]
 
 
+def test_numbers_each_within_32_bit_floats_are_kept_whatever_their_sum(tmp_path: Path) -> None:
+    # Each cell is checked on its own: values near the limit add up past it, and are all valid.
+    path = write(tmp_path / "platform.csv", PLATFORM_HEADER, [f"{STAMP}, 3e38 ,-3e38,3.4e38,30"])
+    messages: list[str] = []
+    assert load_platform_rows(path, messages.append) == [PlatformRow(3e38, -3e38, 3.4e38, 30.0)]
+    assert messages == []
+
+
 def test_report_goes_to_a_logger(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     path = write(tmp_path / "platform.csv", PLATFORM_HEADER, [f"{STAMP},1,2,3,4", "", f"{STAMP},x,2,3,4", "  ,  "])
     log = logging.getLogger("test_csvdata")

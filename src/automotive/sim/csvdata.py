@@ -71,6 +71,19 @@ def _number(cells: list[str], index: int, header: list[str]) -> float:
     return value
 
 
+def _numbers(cells: list[str], start: int, stop: int, header: list[str]) -> list[float]:
+    """The cells ``start..stop-1`` as numbers; the first that is none, or not a finite 32-bit float, named."""
+    try:
+        values = [float(cell) for cell in cells[start:stop]]  # float() ignores the blanks around a number
+    except ValueError:
+        values = []
+    # One sum of magnitudes checks them all at once (NaN and infinity fail it); otherwise cell by cell, which names
+    # the first bad one (or, for a sum of large good values, accepts them all).
+    if len(values) == stop - start and sum(map(abs, values)) <= FLOAT32_MAX:
+        return values
+    return [_number(cells, i, header) for i in range(start, stop)]
+
+
 def _whole(value: float, what: str, low: int, high: int) -> int:
     if value != int(value):
         raise _RowError(f"{what} {value:g} is not a whole number in {low}..{high}")
@@ -90,7 +103,7 @@ def _check_width(cells: list[str], expected: int) -> list[str]:
 
 def _vision_row(cells: list[str], header: list[str]) -> list[VisionObject]:
     cells = _check_width(cells, VISION_COLUMNS)
-    values = [_number(cells, i, header) for i in range(TIMESTAMP_COLUMNS, VISION_COLUMNS)]
+    values = _numbers(cells, TIMESTAMP_COLUMNS, VISION_COLUMNS, header)
     count = _whole(values[-1], "numObjects", 0, VISION_OBJECT_LIST_MAX_SIZE)
     objects = []
     for i in range(count):
@@ -104,7 +117,7 @@ def _vision_row(cells: list[str], header: list[str]) -> list[VisionObject]:
 
 def _platform_row(cells: list[str], header: list[str]) -> PlatformRow:
     cells = _check_width(cells, PLATFORM_COLUMNS)
-    values = [_number(cells, i, header) for i in range(TIMESTAMP_COLUMNS, PLATFORM_COLUMNS)]
+    values = _numbers(cells, TIMESTAMP_COLUMNS, PLATFORM_COLUMNS, header)
     return PlatformRow(*values)
 
 
