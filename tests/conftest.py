@@ -16,6 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the tests' helper modules
 
 from domain_ids import worker_domain_ids  # noqa: E402
+from leftovers import adopt_orphans, descendants, stop_leftovers  # noqa: E402
 
 from automotive import cyclone  # noqa: E402
 from automotive.bus.network import NetworkConfig  # noqa: E402
@@ -27,6 +28,8 @@ os.environ["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()
 os.environ["AUTOMOTIVE_LOG_LEVEL"] = "debug"
 # The fast paths of the test process's own endpoints, as every program switches them on when it starts.
 cyclone.start()
+# Every process a test starts stays in this process's tree, orphans too (tests/leftovers.py).
+adopt_orphans()
 
 
 # Tests that ask for the `domain_id` fixture each get a domain id of their own (a worker's ids are used again, in turn,
@@ -68,6 +71,17 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.fast)
         if module not in SPREAD_MODULES:
             item.add_marker(pytest.mark.xdist_group(module))
+
+
+@pytest.fixture(autouse=True)
+def _no_process_outlives_its_test() -> Iterator[None]:
+    """A process a test started and left running fails the test (after a grace), and is killed: it would meet the
+    worker's later tests on the domain id it had (tests/leftovers.py)."""
+    before = descendants()
+    yield
+    leftovers = stop_leftovers(before)
+    if leftovers:
+        pytest.fail(f"process(es) outlived the test (killed now): {'; '.join(leftovers)}", pytrace=False)
 
 
 class ProcessStarted(RuntimeError):
