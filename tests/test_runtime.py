@@ -373,3 +373,18 @@ def test_matched_endpoints_are_asked_past_cyclone_pythons_race_while_readers_com
         storm.join()
         participant.__del__()
     assert races > 0, f"Cyclone's own call never raised in {asked} calls: the race is gone, and this module with it"
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="one core: OpenBLAS would start no thread of its own anyway")
+def test_numpy_starts_no_blas_threads_in_a_program() -> None:
+    """OpenBLAS's threads (one per core, spinning at numpy's import) are not started: the package sets
+    OPENBLAS_NUM_THREADS=1 unless the user did, and the programs it starts inherit it."""
+    environment = {name: value for name, value in os.environ.items() if name != "OPENBLAS_NUM_THREADS"}
+    count = "import os, numpy; print(len(os.listdir('/proc/self/task')), os.environ['OPENBLAS_NUM_THREADS'])"
+    ours = subprocess.run([sys.executable, "-c", f"import automotive; {count}"], env=environment,
+                          capture_output=True, text=True, timeout=60, check=True)
+    assert ours.stdout.split() == ["1", "1"], ours.stdout + ours.stderr
+    mine = subprocess.run([sys.executable, "-c", f"import automotive; {count}"],
+                          env={**environment, "OPENBLAS_NUM_THREADS": "2"}, capture_output=True, text=True,
+                          timeout=60, check=True)
+    assert mine.stdout.split() == ["2", "2"], mine.stdout + mine.stderr  # the user's own setting is kept

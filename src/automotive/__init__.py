@@ -11,3 +11,10 @@ One package, one folder per layer; imports only go down (import-linter checks it
 - ``apps``    the eight applications; ``tools`` launch, record, replay, bridge, view, shapes, config export
 - ``bench``   the benchmarks
 """
+
+import os
+
+# No program here does linear algebra, yet numpy's OpenBLAS starts a thread per core at import and spins them: about
+# 0.1 s of CPU at every start (a third of an application's imports on two cores, more on larger machines). Set before
+# numpy is first imported, and inherited by the programs started from here; a value set by the user wins.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
