@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from apprunner import AppProcess, AppRunner, CommandProcess
+from cyclonedds.core import GuardCondition, WaitSet
 from cyclonedds.domain import DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
@@ -41,7 +42,7 @@ from automotive.sim import lfsr
 from automotive.tools.support.children import program_command
 from automotive.types.CameraImage import CameraImageData_64KiB
 from automotive.wire.camera import FrameWriter, shared_frames
-from automotive.wire.shm import SharedMemory, SharedReader, SharedWriter
+from automotive.wire.shm import SharedFirstWaitSet, SharedMemory, SharedReader, SharedWriter
 
 ROOT = Path(__file__).resolve().parent.parent
 PROPERTIES = ROOT / "src" / "automotive" / "config" / "properties"
@@ -256,6 +257,48 @@ def test_a_subscriber_that_takes_every_sample_acknowledges_each_once(domain_id: 
         writer.close()
         reader.close()
         memory.close()
+
+
+def test_a_shared_first_waitset_wakes_on_a_sample_and_on_the_dds_side_once_a_round(domain_id: int, prefix: str) -> None:
+    """The taking thread waits on shared memory itself; the DDS side (here a guard condition in the Cyclone WaitSet)
+    wakes it through its thread: once per wait while it stays true, never again once it is taken; nothing: a
+    timeout (0)."""
+    memory = SharedMemory("test", domain_id, "SharedFirst", prefix)
+    qos = Qos(Policy.History.KeepLast(8))
+    writer = SharedWriter(memory, 8, qos, lambda: True)
+    reader = SharedReader(memory, qos)
+    participant = DomainParticipant(domain_id)
+    dds_side = GuardCondition(participant)
+    dds = WaitSet(participant)
+    dds.attach(dds_side)
+    waits = SharedFirstWaitSet(reader, dds)
+
+    def fill(view: memoryview) -> int:
+        view[:] = bytes(8)
+        return 1
+    try:
+        assert waits.wait(int(0.2e9)) == 0  # nothing yet
+        writer.publish(8, fill)
+        assert waits.wait(int(30e9)) >= 1
+        with reader.take() as samples:
+            assert [sample.sequence for sample in samples] == [1]
+        assert waits.wait(int(0.2e9)) == 0  # the sample's wake-up was used up
+        dds_side.set(True)
+        assert waits.wait(int(30e9)) >= 1
+        assert waits.wait(int(30e9)) >= 1  # still true: the next round wakes again
+        dds_side.take()
+        waits.wait(int(0.2e9))  # (a round that began before the take may still come)
+        assert waits.wait(int(0.2e9)) == 0
+        # one way of waiting per subscriber
+        with pytest.raises(RuntimeError, match="already wakes"):
+            SharedFirstWaitSet(reader, dds)
+        with pytest.raises(RuntimeError, match="is waited on by a SharedFirstWaitSet"):
+            reader.wake(GuardCondition(participant))
+    finally:
+        writer.close()
+        reader.close()  # closes the waitset first (its thread ends)
+        memory.close()
+    assert not waits._thread.is_alive()
 
 
 def test_frames_are_read_only_views_of_shared_memory_that_end_with_their_block(domain_id: int, prefix: str) -> None:

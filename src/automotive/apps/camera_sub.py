@@ -21,10 +21,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cyclonedds.core import GuardCondition, WaitSet
+from cyclonedds.core import GuardCondition
 
 from automotive.bus import console
-from automotive.bus.app import Application, run
+from automotive.bus.app import Application, Waits, run
 from automotive.bus.badsamples import BadSample
 from automotive.bus.cli import output_file
 from automotive.bus.latency import LatencyHistogram
@@ -255,7 +255,9 @@ def body(app: Application) -> None:
     try:
         frames = FrameReader(flow.reader, dropped=flow.from_shared)
         stats = CameraStats(size, keep_samples=plot_path is not None)
-        waitset = flow.waitset()
+        # Frames come through shared memory from a camera on this host: its wake-up is the frames' own (DDS brings
+        # those of other hosts, and the publishers' leaving, through a thread of its own).
+        waitset = flow.shared_first_waitset()
         waitset.attach(publisher_left)
         tune_process_for_large_frames()
         app.log.info("viewing %s frames of %d bytes%s%s", data_type.__name__, size,
@@ -297,12 +299,12 @@ def show(app: Application, sources: list[FrameSource], wake_ups: Iterator[bool],
         app.log.info("latency plot written to %s", plot_path)
 
 
-def dds_wake_ups(app: Application, waitset: WaitSet, publisher_left: GuardCondition,
+def dds_wake_ups(app: Application, waitset: Waits, publisher_left: GuardCondition,
                  flow: FlowReader) -> Iterator[bool]:
     """After each wake-up: True once every matched publisher has left."""
     for _ in app.wake_ups(waitset):
-        flow.check_deadline()
         yield publisher_left.read()  # read before taking: every frame it sent is then already here
+        flow.check_deadline()  # once the frames are taken: their latency does not wait for it
 
 
 def view(app: Application, sources: list[FrameSource], wake_ups: Iterator[bool], pattern: FramePattern,

@@ -33,7 +33,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
 from types import FrameType
-from typing import Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 from cyclonedds.core import GuardCondition, InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.pub import DataWriter
@@ -126,6 +126,13 @@ def build_parser(name: str, description: str, add_arguments: ArgumentAdder | Non
     if add_arguments is not None:
         add_arguments(parser)
     return parser
+
+
+class Waits(Protocol):
+    """What :meth:`Application.wake_ups` waits on: a Cyclone WaitSet, or a stand-in with the same call (the shared
+    memory's, automotive.wire.shm.SharedFirstWaitSet)."""
+
+    def wait(self, timeout: int, /) -> int: ...
 
 
 class Application:
@@ -392,7 +399,7 @@ class Application:
         waitset.attach(self.guard)
         return waitset
 
-    def wake_ups(self, waitset: WaitSet, timeout_s: float | Callable[[], float] = 1.0) -> Iterator[None]:
+    def wake_ups(self, waitset: Waits, timeout_s: float | Callable[[], float] = 1.0) -> Iterator[None]:
         """Yield after each wake-up of ``waitset`` (data or timeout) until stopped; ``timeout_s`` may be a function
         giving the time to wait before each wait (a periodic deadline).
 

@@ -239,7 +239,7 @@ class FlowInput:
     def attach(self, waitset: WaitSet) -> None:
         """Have ``waitset`` (woken by the DDS reader) woken by samples in shared memory too."""
         if self.shared is not None:
-            waitset.attach(self.shared.guard)
+            self.shared.attach(waitset)
 
     def drain(self, limit: int = 64) -> Iterator[tuple[RawSample, int]]:
         """Take until nothing is left, yielding each sample with its reception time (ns since the epoch): first those

@@ -207,10 +207,9 @@ class FlowReader(_SharedEnd):
             # the DDS copies of this host's shared-memory writers' samples: dropped before they are decoded or counted
             self.reader.skip_writers(self.from_shared)
         self.guard = GuardCondition(app.bus.participant)
+        self._guarded = False  # a thread sets the guard on samples in shared memory (attach)
         self.deadline = shm.DeadlineWatch(shm.deadline_s(reader_qos),
                                           _listener_report(self.reader, "requested_deadline_missed"))
-        if self.shared is not None:
-            self.shared.wake(self.guard)
 
     @classmethod
     def of_role(cls, app: Application, role: str, data_type: type[T], default_topic: str,
@@ -226,8 +225,25 @@ class FlowReader(_SharedEnd):
     def waitset(self, *others: DataReader[Any]) -> WaitSet:
         """The application's WaitSet for this flow's DDS reader, its shared memory, and ``others``."""
         waitset = self.app.waitset(self.reader, *others)
-        waitset.attach(self.guard)
+        self.attach(waitset)
         return waitset
+
+    def attach(self, waitset: WaitSet) -> None:
+        """Have ``waitset`` woken by samples in shared memory too (through :attr:`guard`, set by a thread that waits
+        on shared memory)."""
+        if self.shared is not None:
+            self.shared.wake(self.guard)
+            self._guarded = True
+        waitset.attach(self.guard)
+
+    def shared_first_waitset(self) -> WaitSet | shm.SharedFirstWaitSet:
+        """For a flow whose samples come through shared memory (its DDS samples come from other hosts, or from a
+        tool that writes on DDS): the taking thread waits on shared memory itself, woken once by a sample as a plain
+        iceoryx2 subscriber is; the DDS reader and the stop signal wake it through a thread of their own. Without
+        shared memory, :meth:`waitset`."""
+        if self.shared is None:
+            return self.waitset()
+        return shm.SharedFirstWaitSet(self.shared, self.app.waitset(self.reader))
 
     def from_shared(self, writer_handle: int) -> bool:
         """A DDS sample of this writer came through shared memory too: drop it."""
@@ -235,7 +251,8 @@ class FlowReader(_SharedEnd):
 
     def take_shared(self, limit: int = 16) -> shm.LentShared:
         """Samples from shared memory (none without it), valid inside ``with flow.take_shared() as samples:``."""
-        self.guard.take()
+        if self._guarded:
+            self.guard.take()
         if self.shared is None:
             return shm.LentShared([], lambda: None)
         lent = self.shared.take(limit)

@@ -45,7 +45,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import iceoryx2 as iox2
-from cyclonedds.core import GuardCondition
+from cyclonedds.core import GuardCondition, WaitSet
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
 from cyclonedds.sub import DataReader
@@ -556,11 +556,18 @@ class SharedReader:
             self.listener = memory.events.listener_builder().create()
             self.notifier = memory.consumed.notifier_builder().create()
         self._waking: threading.Thread | None = None
+        self._closing: list[Callable[[], None]] = []
+        self._waited_on = False  # a SharedFirstWaitSet waits on the listener
         self._stop = threading.Event()
         self._last_sequence: dict[int, int] = {}  # publisher id -> the sequence of its last sample received
 
     def wake(self, guard: GuardCondition) -> None:
-        """Set ``guard`` whenever samples were sent or a publisher leaves, from a thread of its own."""
+        """Set ``guard`` whenever samples were sent or a publisher leaves, from a thread of its own (started once)."""
+        if self._waking is not None:
+            return
+        if self._waited_on:
+            raise RuntimeError("the shared-memory listener is waited on by a SharedFirstWaitSet")
+
         def run() -> None:
             while not self._stop.is_set():
                 if _wait(self.listener, WAIT_SLICE_S):
@@ -626,12 +633,97 @@ class SharedReader:
             self.notifier.notify_with_custom_event_id(iox2.EventId.new(sequence % ACK_IDS))
         held.clear()
 
+    def on_close(self, close: Callable[[], None]) -> None:
+        """Call ``close`` first when this subscriber closes (what waits on its listener)."""
+        self._closing.append(close)
+
     def close(self) -> None:
+        for close in self._closing:
+            close()
         self._stop.set()
         if self._waking is not None:
             self._waking.join()
         for entity in (self.subscriber, self.listener, self.notifier):
             entity.delete()
+
+
+class SharedFirstWaitSet:
+    """A WaitSet whose taking thread waits on shared memory itself: a sample sent wakes it at once, as it wakes a plain
+    iceoryx2 subscriber, instead of waking a thread that then wakes it through a Cyclone guard condition (a second
+    wake-up: about 0.1 ms more at the median, milliseconds at the tail on a busy machine). The DDS side (``dds``: the
+    flow's DDS reader, the stop signal, whatever else is attached) is watched by a thread of its own, which wakes the
+    taking thread through a pipe and then waits until that thread has come back to wait: a condition still true (a
+    sample not yet taken) wakes it once per round, never in a loop.
+
+    Used by :meth:`wait` as the Cyclone WaitSet it stands for (``automotive.bus.app.Application.wake_ups``)."""
+
+    def __init__(self, reader: SharedReader, dds: WaitSet):
+        if reader._waking is not None or reader._waited_on:
+            raise RuntimeError("the shared-memory listener already wakes a guard condition (SharedReader.wake) or "
+                               "a SharedFirstWaitSet")
+        reader._waited_on = True
+        self._listener = reader.listener
+        self._dds = dds
+        self._read_fd, self._write_fd = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self._waitset = (iox2.WaitSetBuilder.new().signal_handling_mode(iox2.SignalHandlingMode.Disabled)
+                         .create(iox2.ServiceType.Ipc))
+        self._pipe = iox2.FileDescriptor.non_owning_new(self._read_fd)
+        self._attachments = [self._waitset.attach_notification(self._listener),
+                             self._waitset.attach_notification_fd(self._pipe)]
+        self._back = threading.Event()  # the taking thread is back in wait(): the DDS side may wake it again
+        self._back.set()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch_dds, name=f"dds-wake {reader.memory.topic}", daemon=True)
+        self._thread.start()
+        reader.on_close(self.close)
+
+    def attach(self, condition: Any) -> None:
+        """A further condition (a guard, a read condition) that wakes the taking thread."""
+        self._dds.attach(condition)
+
+    def _watch_dds(self) -> None:
+        slice_ns = int(WAIT_SLICE_S * 1e9)
+        while not self._stop.is_set():
+            if not self._dds.wait(slice_ns) or self._stop.is_set():
+                continue
+            self._back.clear()
+            try:
+                os.write(self._write_fd, b"!")
+            except BlockingIOError:  # the pipe is full of wake-ups the taking thread has not read yet: it will
+                pass
+            while not self._back.wait(WAIT_SLICE_S) and not self._stop.is_set():
+                pass
+
+    def wait(self, timeout_ns: int) -> int:
+        """Wait up to ``timeout_ns`` for a sample in shared memory or a DDS wake-up; the number of sources that woke
+        it (0: the timeout)."""
+        self._back.set()
+        woken, _ = self._waitset.wait_and_process_with_timeout(iox2.Duration.from_secs_f64(max(timeout_ns, 0) / 1e9))
+        # Each source that woke it read empty, so that it wakes the next wait only with what comes after this one.
+        for attachment in woken:
+            if attachment.has_event_from(self._attachments[1]):
+                try:
+                    while os.read(self._read_fd, 4096):
+                        pass
+                except BlockingIOError:
+                    pass
+            elif attachment.has_event_from(self._attachments[0]):
+                try:
+                    self._listener.try_wait()
+                except iox2.ListenerWaitError:
+                    pass
+        return len(woken)
+
+    def close(self) -> None:
+        if self._stop.is_set():
+            return
+        self._stop.set()
+        self._thread.join()
+        for attachment in self._attachments:
+            attachment.delete()
+        self._waitset.delete()
+        os.close(self._read_fd)
+        os.close(self._write_fd)
 
 
 def prefix_of(props: Properties) -> str:
