@@ -131,9 +131,10 @@ def fuse_until_stopped(app: Application, mode: str, interval_s: float, vision: D
         return next_publish - time.monotonic()
 
     if mode == "periodic":
-        # Woken by the LiDAR (its stamps are logged) and by the clock, not by each vision sample: the vision data is
-        # taken once a list (the reader keeps 100 samples a sensor), whatever the number of sensors.
-        wake_ups = app.wake_ups(lidar.waitset(), timeout_s=until_publish)
+        # Woken by the LiDAR (its stamps are logged; a cloud in shared memory wakes this thread itself) and by the
+        # clock, not by each vision sample: the vision data is taken once a list (the reader keeps 100 samples a
+        # sensor), whatever the number of sensors.
+        wake_ups = app.wake_ups(lidar.shared_first_waitset(), timeout_s=until_publish)
     else:
         wake_ups = app.wake_ups(lidar.waitset(vision), timeout_s=1.0)
     def publish() -> None:

@@ -655,7 +655,8 @@ class SharedFirstWaitSet:
     taking thread through a pipe and then waits until that thread has come back to wait: a condition still true (a
     sample not yet taken) wakes it once per round, never in a loop.
 
-    Used by :meth:`wait` as the Cyclone WaitSet it stands for (``automotive.bus.app.Application.wake_ups``)."""
+    Used by :meth:`wait` as the Cyclone WaitSet it stands for (``automotive.bus.app.Application.wake_ups``). Its
+    timeout is iceoryx2's, in whole milliseconds rounded up (epoll): a periodic wake-up comes up to 1 ms late."""
 
     def __init__(self, reader: SharedReader, dds: WaitSet):
         if reader._waking is not None or reader._waited_on:
