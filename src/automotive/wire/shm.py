@@ -655,8 +655,8 @@ class SharedFirstWaitSet:
     taking thread through a pipe and then waits until that thread has come back to wait: a condition still true (a
     sample not yet taken) wakes it once per round, never in a loop.
 
-    Used by :meth:`wait` as the Cyclone WaitSet it stands for (``automotive.bus.app.Application.wake_ups``). Its
-    timeout is iceoryx2's, in whole milliseconds rounded up (epoll): a periodic wake-up comes up to 1 ms late."""
+    It stands for a Cyclone WaitSet in ``automotive.bus.app.Application.wake_ups`` (:meth:`wait`, :meth:`attach`).
+    Its timeout is iceoryx2's, in whole milliseconds rounded up (epoll): a periodic wake-up comes up to 1 ms late."""
 
     def __init__(self, reader: SharedReader, dds: WaitSet):
         if reader._waking is not None or reader._waited_on:
@@ -699,7 +699,11 @@ class SharedFirstWaitSet:
         """Wait up to ``timeout_ns`` for a sample in shared memory or a DDS wake-up; the number of sources that woke
         it (0: the timeout)."""
         self._back.set()
-        woken, _ = self._waitset.wait_and_process_with_timeout(iox2.Duration.from_secs_f64(max(timeout_ns, 0) / 1e9))
+        try:
+            woken, _ = self._waitset.wait_and_process_with_timeout(
+                iox2.Duration.from_secs_f64(max(timeout_ns, 0) / 1e9))
+        except iox2.WaitSetRunError:  # interrupted: the caller looks at why (a stop) and waits again
+            return 0
         # Each source that woke it read empty, so that it wakes the next wait only with what comes after this one.
         for attachment in woken:
             if attachment.has_event_from(self._attachments[1]):
