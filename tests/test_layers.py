@@ -90,6 +90,8 @@ def test_every_program_has_main_with_argv_and_a_command(module: str) -> None:
         assert module in started, f"{module} has no console script in pyproject.toml (automotive.start)"
 
 
+TESTS = Path(__file__).resolve().parent
+TEST_SOURCES = sorted(path for path in TESTS.rglob("*.py") if "node_modules" not in path.parts)
 RACY_CALLS = ("get_matched_subscriptions", "get_matched_publications")
 
 
@@ -104,10 +106,9 @@ def test_the_matched_endpoints_are_asked_only_through_automotive_cyclone_matched
     """Cyclone DDS Python's get_matched_* raise IndexError when an endpoint matches between its two C calls: every
     caller, programs and tests, asks through automotive.cyclone.matched, which asks again. The race's own test calls
     them directly on purpose."""
-    tests = Path(__file__).resolve().parent
-    allowed = {CYCLONE / "matched.py", tests / "test_runtime.py"}
-    found = [line for path in sorted([*PACKAGE.rglob("*.py"), *tests.rglob("*.py")])
-             if path not in allowed and "node_modules" not in path.parts for line in racy_calls(path)]
+    allowed = {CYCLONE / "matched.py", TESTS / "test_runtime.py"}
+    found = [line for path in [*sorted(PACKAGE.rglob("*.py")), *TEST_SOURCES] if path not in allowed
+             for line in racy_calls(path)]
     assert not found, "call automotive.cyclone.matched.matched_subscriptions/_publications instead: " + ", ".join(found)
 
 
@@ -119,9 +120,7 @@ def test_the_racy_call_rule_sees_a_direct_call(tmp_path: Path) -> None:
 
 def test_no_test_names_a_domain_id_that_conftest_hands_out() -> None:
     """A test's own domain comes from the domain_id fixtures; the few it may name are domain_ids.NAMED_DOMAIN_IDS."""
-    tests = Path(__file__).resolve().parent
-    found = [line for path in sorted(tests.rglob("*.py")) if "node_modules" not in path.parts
-             for line in foreign_domain_ids(path)]
+    found = [line for path in TEST_SOURCES for line in foreign_domain_ids(path)]
     assert not found, "take the domain_id or other_domain_id fixture instead: " + ", ".join(found)
 
 

@@ -206,8 +206,7 @@ class FlowReader(_SharedEnd):
         if isinstance(self.reader, CheckedReader) and self.key is not None:
             # the DDS copies of this host's shared-memory writers' samples: dropped before they are decoded or counted
             self.reader.skip_writers(self.from_shared)
-        self.guard = GuardCondition(app.bus.participant)
-        self._guarded = False  # a thread sets the guard on samples in shared memory (attach)
+        self.guard = GuardCondition(app.bus.participant)  # set by the shared memory's wake thread (attach)
         self.deadline = shm.DeadlineWatch(shm.deadline_s(reader_qos),
                                           _listener_report(self.reader, "requested_deadline_missed"))
 
@@ -233,7 +232,6 @@ class FlowReader(_SharedEnd):
         on shared memory)."""
         if self.shared is not None:
             self.shared.wake(self.guard)
-            self._guarded = True
         waitset.attach(self.guard)
 
     def shared_first_waitset(self) -> WaitSet | shm.SharedFirstWaitSet:
@@ -251,10 +249,10 @@ class FlowReader(_SharedEnd):
 
     def take_shared(self, limit: int = 16) -> shm.LentShared:
         """Samples from shared memory (none without it), valid inside ``with flow.take_shared() as samples:``."""
-        if self._guarded:
-            self.guard.take()
         if self.shared is None:
             return shm.LentShared([], lambda: None)
+        if self.shared.wakes:
+            self.guard.take()
         lent = self.shared.take(limit)
         if lent.samples:
             self.deadline.sample(None)

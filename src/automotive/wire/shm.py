@@ -561,6 +561,11 @@ class SharedReader:
         self._stop = threading.Event()
         self._last_sequence: dict[int, int] = {}  # publisher id -> the sequence of its last sample received
 
+    @property
+    def wakes(self) -> bool:
+        """Whether a thread of :meth:`wake` sets a guard condition on samples."""
+        return self._waking is not None
+
     def wake(self, guard: GuardCondition) -> None:
         """Set ``guard`` whenever samples were sent or a publisher leaves, from a thread of its own (started once)."""
         if self._waking is not None:
@@ -659,7 +664,7 @@ class SharedFirstWaitSet:
     Its timeout is iceoryx2's, in whole milliseconds rounded up (epoll): a periodic wake-up comes up to 1 ms late."""
 
     def __init__(self, reader: SharedReader, dds: WaitSet):
-        if reader._waking is not None or reader._waited_on:
+        if reader.wakes or reader._waited_on:
             raise RuntimeError("the shared-memory listener already wakes a guard condition (SharedReader.wake) or "
                                "a SharedFirstWaitSet")
         reader._waited_on = True
@@ -669,8 +674,8 @@ class SharedFirstWaitSet:
         self._waitset = (iox2.WaitSetBuilder.new().signal_handling_mode(iox2.SignalHandlingMode.Disabled)
                          .create(iox2.ServiceType.Ipc))
         self._pipe = iox2.FileDescriptor.non_owning_new(self._read_fd)
-        self._attachments = [self._waitset.attach_notification(self._listener),
-                             self._waitset.attach_notification_fd(self._pipe)]
+        self._from_shared = self._waitset.attach_notification(self._listener)
+        self._from_dds = self._waitset.attach_notification_fd(self._pipe)
         self._back = threading.Event()  # the taking thread is back in wait(): the DDS side may wake it again
         self._back.set()
         self._stop = threading.Event()
@@ -706,13 +711,13 @@ class SharedFirstWaitSet:
             return 0
         # Each source that woke it read empty, so that it wakes the next wait only with what comes after this one.
         for attachment in woken:
-            if attachment.has_event_from(self._attachments[1]):
+            if attachment.has_event_from(self._from_dds):
                 try:
                     while os.read(self._read_fd, 4096):
                         pass
                 except BlockingIOError:
                     pass
-            elif attachment.has_event_from(self._attachments[0]):
+            elif attachment.has_event_from(self._from_shared):
                 try:
                     self._listener.try_wait()
                 except iox2.ListenerWaitError:
@@ -724,8 +729,8 @@ class SharedFirstWaitSet:
             return
         self._stop.set()
         self._thread.join()
-        for attachment in self._attachments:
-            attachment.delete()
+        self._from_shared.delete()
+        self._from_dds.delete()
         self._waitset.delete()
         os.close(self._read_fd)
         os.close(self._write_fd)
