@@ -284,9 +284,8 @@ def test_lan_multicast_with_the_launcher_on_each_host(hosts: TwoHosts, tmp_path:
 SYSTEM_AGE_S = 35.0
 LATE_JOIN_BOUND_S = 10.0
 LATE_READS = ("Vision", "SensorObjects", "PlatformStatus", "PlatformControl", "Alerts", "Lidar", "Camera")
-# A late join failed once in CI (2026-11-28: the RTI participant had not matched the writers of sensor_fusion and lidar
-# after 10 s), and never in some 60 runs of this test here, alone or beside the whole suite (docs/development.md). The
-# system on A writes Cyclone's discovery trace (about 3 MB) so that a failure says what each application saw of it.
+# The system on A writes Cyclone's discovery trace (about 3 MB), so that a late join that fails says what each
+# application saw of the RTI participant: how a failure in CI was found to be the peer's own (docs/development.md).
 TRACE_FILE = "cyclone-${CYCLONEDDS_PID}.log"
 
 
