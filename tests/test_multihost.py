@@ -72,9 +72,9 @@ class TwoHosts:
     processes: list[CommandProcess] = field(default_factory=list)
 
     def start(self, host: Host, name: str, command: list[str], stdin: bool = False,
-              separate_stderr: bool = False) -> CommandProcess:
+              separate_stderr: bool = False, env: dict[str, str] | None = None) -> CommandProcess:
         return self.runner.start_command(f"{name}@{host.namespace}", ["ip", "netns", "exec", host.namespace, *command],
-                                         stdin=stdin, separate_stderr=separate_stderr)
+                                         env=env, stdin=stdin, separate_stderr=separate_stderr)
 
     def app(self, host: Host, name: str, *args: str, peers: str = PEERS) -> CommandProcess:
         return self.start(host, name, program_command(name, "--domain", str(self.domain_id), "--peers", peers,
@@ -291,12 +291,11 @@ TRACE_FILE = "cyclone-${CYCLONEDDS_PID}.log"
 
 def launch_on_a(hosts: TwoHosts, log_dir: Path, *args: str) -> CommandProcess:
     """``scripts/launch`` on A (background, verbose) with Cyclone's discovery trace in ``log_dir``."""
-    tracing = (f"<Tracing><Category>discovery</Category><OutputFile>{log_dir}/{TRACE_FILE}</OutputFile></Tracing>")
+    tracing = f"<Tracing><Category>discovery</Category><OutputFile>{log_dir}/{TRACE_FILE}</OutputFile></Tracing>"
     uri = os.environ["CYCLONEDDS_URI"].replace("</Domain>", tracing + "</Domain>", 1)
-    return hosts.runner.start_command(f"launch@{hosts.a.namespace}", [
-        "ip", "netns", "exec", hosts.a.namespace, str(ROOT / "scripts" / "launch"), "--no-setup", "--mode",
-        "background", "-v", "--domain", str(hosts.domain_id), "--log-dir", str(log_dir), *args],
-        env={"CYCLONEDDS_URI": uri})
+    return hosts.start(hosts.a, "launch", [
+        str(ROOT / "scripts" / "launch"), "--no-setup", "--mode", "background", "-v", "--domain", str(hosts.domain_id),
+        "--log-dir", str(log_dir), *args], env={"CYCLONEDDS_URI": uri})
 
 
 def discovery_digest(log_dir: Path, since: float) -> str:
