@@ -411,6 +411,9 @@ def test_probe_rates_are_over_the_checkpoints_of_the_polls() -> None:
     counter = Counter()
     counter.checkpoint(100.0)
     assert counter.rates() is None
+    counter.samples, counter.bytes = 16, 3200  # a reader's backlog and what came since, half a second later
+    counter.checkpoint(100.5)
+    assert counter.rates() is None, "no rate over less than a second (this would say 32/s)"
     counter.samples, counter.bytes = 20, 4000
     counter.checkpoint(102.0)
     assert counter.rates() == (10.0, 2000.0)

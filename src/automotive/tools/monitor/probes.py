@@ -70,6 +70,9 @@ POLL_DEPTH = 64  # samples kept per instance between two polls: a second of a 60
 CAMERA_DEPTH = 2  # the camera's frames are counted, never kept
 MAX_INSTANCES = 1024  # instances per reader: a writer inventing keys without end cannot grow the monitor
 RATE_WINDOW_S = 5.0  # rates are over about this long (the checkpoints of the polls within it)
+# No rate over less: the first take of a new probe may bring the samples its reader kept while the monitor was busy,
+# and over half a second those few made a 20/s flow look like more than 30/s (the monitor beside a whole test suite).
+MIN_RATE_WINDOW_S = 1.0
 LIDAR_EVERY_S = 2.0  # the LiDAR picture changes at most every 2 s (drawing it costs about 50 ms)
 LIDAR_SIZE = (640, 320)
 TAKE_LIMIT = 256
@@ -93,11 +96,11 @@ class Counter:
             self.checkpoints.popleft()
 
     def rates(self) -> tuple[float, float] | None:
-        """(samples/s, bytes/s) over the checkpoints kept; None before two polls."""
+        """(samples/s, bytes/s) over the checkpoints kept; None until they span MIN_RATE_WINDOW_S."""
         if len(self.checkpoints) < 2:
             return None
         (first, samples, size), (last, samples_now, size_now) = self.checkpoints[0], self.checkpoints[-1]
-        if last <= first:
+        if last - first < MIN_RATE_WINDOW_S:
             return None
         return (samples_now - samples) / (last - first), (size_now - size) / (last - first)
 
