@@ -315,8 +315,8 @@ def discovery_digest(log_dir: Path, since: float) -> str:
         finds = ", ".join(f"found {prefix} at {float(when) - since:+.2f} s" for when, prefix in found)
         lines.append(f"  {name}: {finds or 'found no participant of B'}")
         for _when, prefix in found:
-            known = dict(re.findall(r"SEDP ST0 " + re.escape(prefix) + r":(\w+) .*? (?:reader|writer) (\w+):", text))
             quoted = re.escape(prefix)
+            known = dict(re.findall(rf"SEDP ST0 {quoted}:(\w+) .*? (?:reader|writer) (\w+):", text))
             matched = {known[entity] for pair in re.findall(
                 rf"ddsi_proxy_reader_add_connection\(wr \S+ prd {quoted}:(\w+)\)|"
                 rf"ddsi_proxy_writer_add_connection\(pwr {quoted}:(\w+) ", text) for entity in pair if entity in known}
