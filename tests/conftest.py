@@ -26,6 +26,9 @@ os.environ["CYCLONEDDS_URI"] = NetworkConfig().cyclone_xml()
 # The programs the tests start log every sample (DEBUG), which many tests wait for; the tests of the default console
 # (INFO: state changes and a status line) take the variable out of the child's environment.
 os.environ["AUTOMOTIVE_LOG_LEVEL"] = "debug"
+# The programs see the streams a plain shell gives them, whatever the developer's environment: a program that needs
+# PYTHONUNBUFFERED to say its lines through a pipe as they come is a defect (a benchmark once did).
+os.environ.pop("PYTHONUNBUFFERED", None)
 # The fast paths of the test process's own endpoints, as every program switches them on when it starts.
 cyclone.start()
 # Every process a test starts stays in this process's tree, orphans too (tests/leftovers.py).

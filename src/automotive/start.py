@@ -14,11 +14,16 @@ nothing of the package:
   main thread, so that ``finally`` blocks stop children and remove files; either ends with one line.
 
 A program that installs handlers of its own (automotive.bus.app.run, the launcher) replaces these once it is running.
+
+Every program's stdout is line-buffered from here on: Python buffers a pipe's stdout in blocks (unless
+PYTHONUNBUFFERED is set), so a benchmark's progress read through a pipe (``| tee``, a test, the launcher) came all at
+once when it ended.
 """
 
 from __future__ import annotations
 
 import importlib
+import io
 import os
 import signal
 import sys
@@ -48,6 +53,8 @@ def start(module: str, name: str, argv: list[str] | None = None) -> int:
         _say(name, signum)
         os._exit(EXIT_INTERRUPTED if signum == signal.SIGINT else 0)
 
+    if isinstance(sys.stdout, io.TextIOWrapper):  # not a StringIO of check_settings
+        sys.stdout.reconfigure(line_buffering=True)
     # A signal the parent told this process to ignore (SIG_IGN) stays ignored.
     handled = [sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) != signal.SIG_IGN]
     previous: dict[int, Any] = {sig: signal.signal(sig, end_now) for sig in handled}
