@@ -105,6 +105,17 @@ def test_ctrl_c_ends_a_benchmark_without_a_traceback(domain_id: int) -> None:
     assert process.returncode == 130 and "Traceback" not in errors, f"{errors} (signals when sent: {state})"
 
 
+
+def test_a_benchmark_whose_reader_leaves_ends_quietly(domain_id: int) -> None:
+    """``automotive bench filter | head -1``: its next line meets a closed pipe; no traceback, exit code 0."""
+    process = subprocess.Popen([*AUTOMOTIVE, "bench", "filter", "--domain", str(domain_id)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert process.stdout is not None and process.stderr is not None
+    assert process.stdout.readline()
+    process.stdout.close()  # the reader leaves while the benchmark has lines to print
+    errors = process.stderr.read()
+    assert process.wait(timeout=60) == 0 and errors == "", errors
+
 SCRIPTS = Path(sys.executable).parent  # the console scripts of this installation
 
 

@@ -17,7 +17,7 @@ A program that installs handlers of its own (automotive.bus.app.run, the launche
 
 Every program's stdout is line-buffered from here on: Python buffers a pipe's stdout in blocks (unless
 PYTHONUNBUFFERED is set), so a benchmark's progress read through a pipe (``| tee``, a test, the launcher) came all at
-once when it ended.
+once when it ended. A reader of stdout that leaves early (``| head``) ends the program quietly, exit code 0.
 """
 
 from __future__ import annotations
@@ -68,6 +68,11 @@ def start(module: str, name: str, argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPTED
     except Stopped:
         _say(name, signal.SIGTERM)
+        return 0
+    except BrokenPipeError:  # stdout's reader left (``| head``): end quietly, as a program that only prints does
+        from automotive.bus.console import silence_stdout  # imported by then: the program is running
+
+        silence_stdout()  # or Python's own flush at exit reports the pipe again
         return 0
 
 

@@ -39,10 +39,10 @@ beside them, watched and stopped like them, and says the page's URL once on the 
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 from collections.abc import Callable
 
+from automotive.bus import console
 from automotive.bus.cli import (
     EXIT_BAD_INPUT,
     ArgumentParser,
@@ -84,8 +84,7 @@ def printing(command: Callable[[], int]) -> int:
         sys.stdout.flush()
         return code
     except BrokenPipeError:
-        # Python would report the pipe again when it flushes stdout at exit: point stdout at /dev/null first.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        console.silence_stdout()  # Python would report the pipe again when it flushes stdout at exit
         return 0
 
 
