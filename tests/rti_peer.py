@@ -37,12 +37,14 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, TypeVar
 from xml.sax.saxutils import quoteattr
 
 import rticonnextdds_connector as rti
 
 from automotive.bench.rti_reader import own_lines
+
+T = TypeVar("T")
 
 RTI_XML = Path(__file__).resolve().parent / "rti" / "automotive_rti.xml"
 QOS_LIBRARY = "RtiPeerQos"
@@ -193,22 +195,23 @@ class RtiPeer:
             raise AssertionError(f"timed out after {timeout:.0f} s waiting for acknowledgments on RTI writer "
                                  f"{name}") from None
 
-    def take(self, name: str) -> list[dict[str, Any]]:
-        """Take what reader ``name`` holds now: the valid samples, as dicts."""
+    def _take(self, name: str, each: Callable[[Any], T]) -> list[T]:
+        """Take what reader ``name`` holds now: ``each(sample)`` of its valid samples, before they go back."""
         reader = self._inputs[name]
         reader.take()
-        samples = [sample.get_dictionary() for sample in reader.samples.valid_data_iter]
-        reader.return_samples()
-        return samples
+        try:
+            return [each(sample) for sample in reader.samples.valid_data_iter]
+        finally:
+            reader.return_samples()
+
+    def take(self, name: str) -> list[dict[str, Any]]:
+        """Take what reader ``name`` holds now: the valid samples, as dicts."""
+        return self._take(name, lambda sample: sample.get_dictionary())
 
     def take_count(self, name: str) -> int:
         """Take what reader ``name`` holds now; how many valid samples. Nothing is converted: a camera frame made
         into a dict (4 Mi numbers) takes seconds of the peer's only thread."""
-        reader = self._inputs[name]
-        reader.take()
-        count = sum(1 for _ in reader.samples.valid_data_iter)
-        reader.return_samples()
-        return count
+        return len(self._take(name, lambda sample: None))
 
     def take_until(self, name: str, count: int = 1, timeout: float = 15.0,
                    accept: Callable[[dict[str, Any]], bool] | None = None) -> list[dict[str, Any]]:
