@@ -62,11 +62,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from automotive import config
 from automotive.bench.ddsperf import OneWay, ddsperf_one_way
-from automotive.bus import stats
 from automotive.bus.cli import (
     ArgumentParser,
     add_domain_option,
@@ -80,7 +78,7 @@ from automotive.bus.ports import MAX_PARTICIPANTS
 from automotive.bus.realtime import LOCK_MEMORY_KEY, MAX_PRIORITY, PRIORITY_KEY, priority_problem
 from automotive.cyclone.codecs import codec_for
 from automotive.tools.launch.plan import REALTIME_PRIORITY
-from automotive.tools.support.children import Child, program_command, stop_all, work_folder
+from automotive.tools.support.children import Child, StatsChild, stop_all, work_folder
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Common import ClassificationEnum, IndicatorStatusEnum, POSIXTimestamp
 from automotive.types.Platform import PlatformControl
@@ -127,16 +125,12 @@ def tall(sample_number: int) -> bool:
     return (sample_number - 1) % ROWS % 2 == 0
 
 
-class Process:
+class Process(StatsChild):
     """A program of the system with its status records (--stats) in ``workdir``."""
 
-    def __init__(self, name: str, program: str, args: list[str], env: dict[str, str], workdir: Path):
-        self.name = name
-        self.stats = workdir / f"{name}.jsonl"
-        self.child = Child(name, program_command(program, *args, "--stats", str(self.stats)), env=env)
-
-    def records(self, kind: str) -> list[dict[str, Any]]:
-        return list(stats.read(self.stats, kind))
+    @classmethod
+    def of(cls, name: str, program: str, args: list[str], env: dict[str, str], workdir: Path) -> Process:
+        return cls.start(name, program, args, workdir / f"{name}.jsonl", env=env)
 
     def check_alive(self) -> None:
         if self.child.poll() is not None:
@@ -257,19 +251,18 @@ def measure(sensors: int, objects: int, window: float, domain: int, timeout: flo
     common = ["--domain", str(domain), "-D", "config.matchReport=0", *realtime.settings()]
     processes: dict[str, Process] = {}
     try:
-        processes["hmi"] = Process("hmi", "hmi", [*common, "--ui", "console"], env, workdir)
-        processes["vehicle_platform"] = Process("vehicle_platform", "vehicle_platform", common, env, workdir)
-        processes["collision_avoidance"] = Process("collision_avoidance", "collision_avoidance", common, env,
-                                                   workdir)
-        processes["sensor_fusion"] = Process("sensor_fusion", "sensor_fusion", [*common, "-D", f"config.mode={mode}"],
-                                             env, workdir)
+        processes["hmi"] = Process.of("hmi", "hmi", [*common, "--ui", "console"], env, workdir)
+        for name in ("vehicle_platform", "collision_avoidance"):
+            processes[name] = Process.of(name, name, common, env, workdir)
+        processes["sensor_fusion"] = Process.of("sensor_fusion", "sensor_fusion",
+                                                [*common, "-D", f"config.mode={mode}"], env, workdir)
         everyone = list(processes.values())
         wait_until(lambda: all(p.records("ready") for p in everyone), timeout, "the four applications", everyone)
         for i in range(1, sensors + 1):
-            processes[f"vision-{i}"] = Process(f"vision-{i}", "vision",
-                                               [*common, "-D", f"config.sensorId={i}", "-D", f"dataFile={csv}",
-                                                "-D", f"config.pubInterval={vision_interval_ms}"],
-                                               env, workdir)
+            processes[f"vision-{i}"] = Process.of(f"vision-{i}", "vision",
+                                                  [*common, "-D", f"config.sensorId={i}", "-D", f"dataFile={csv}",
+                                                   "-D", f"config.pubInterval={vision_interval_ms}"],
+                                                  env, workdir)
         everyone = list(processes.values())
         wait_until(lambda: any(r["topic"] == "VisionTopic" and r["endpoint"] == "reader" and r["count"] >= sensors
                                for r in processes["sensor_fusion"].records("matched")),

@@ -11,6 +11,7 @@ that fails later (a full disk) is said once on stderr and ends the records, not 
 from __future__ import annotations
 
 import json
+import os
 import sys
 import threading
 import time
@@ -95,16 +96,50 @@ class Stats:
                 self._stream = None
 
 
+class Follower:
+    """The records of a stats file that another process appends to, read as they come: each call reads only what was
+    appended since the last one, and a last line still being written waits for the next call. A benchmark waiting on
+    a record polls the file; reading it whole at every poll cost the parent half a core once its children's files
+    had grown to some thousand lines (`automotive bench failover`: 24 s of CPU in a 46 s run)."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._offset = 0  # bytes of the file read so far
+        self._partial = b""  # the start of a line whose end was not written yet
+        self._all: list[dict[str, Any]] = []
+        self._by_kind: dict[str, list[dict[str, Any]]] = {}
+
+    def records(self, kind: str | None = None) -> list[dict[str, Any]]:
+        """Every record so far (of one ``kind``), in the order written."""
+        self._read_new()
+        return list(self._all if kind is None else self._by_kind.get(kind, ()))
+
+    def _read_new(self) -> None:
+        try:
+            with open(self.path, "rb") as stream:
+                if os.fstat(stream.fileno()).st_size < self._offset:  # written anew: read from its start
+                    self._offset, self._partial = 0, b""
+                    self._all.clear()
+                    self._by_kind.clear()
+                stream.seek(self._offset)
+                data = stream.read()
+        except FileNotFoundError:
+            return
+        self._offset += len(data)
+        lines = (self._partial + data).split(b"\n")
+        self._partial = lines.pop()
+        for line in lines:
+            try:
+                record = json.loads(line)
+            except ValueError:  # not JSON (nor UTF-8): not a record
+                continue
+            if isinstance(record, dict):
+                self._all.append(record)
+                kind = record.get("kind")
+                if isinstance(kind, str):
+                    self._by_kind.setdefault(kind, []).append(record)
+
+
 def read(path: Path, kind: str | None = None) -> Iterator[dict[str, Any]]:
     """The records of a stats file (of one ``kind``), skipping a last line still being written."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        return
-    for line in text.splitlines():
-        try:
-            record = json.loads(line)
-        except ValueError:
-            continue
-        if isinstance(record, dict) and (kind is None or record.get("kind") == kind):
-            yield record
+    yield from Follower(path).records(kind)

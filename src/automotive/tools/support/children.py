@@ -34,7 +34,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
-from typing import IO, Any
+from typing import IO, Any, Self
 
 import psutil
 
@@ -211,11 +211,20 @@ class Child:
         Raises AssertionError with the output so far when the child ends first or the time is up.
         """
         deadline = time.monotonic() + timeout
-        label = pattern if isinstance(pattern, str) else pattern.pattern
+        regex = re.compile(pattern) if isinstance(pattern, str) else pattern
+        label = regex.pattern
+        # Each line is searched once: a chatty child (a line per sample) would otherwise cost the waiting process
+        # a search of every earlier line at each new one.
+        scanned, found = since, 0
         while True:
-            found = list(self.matches(pattern, since))
-            if len(found) >= count:
-                return found[count - 1]
+            records = self.records
+            for index in range(scanned, len(records)):
+                match = regex.search(records[index].text)
+                if match:
+                    found += 1
+                    if found >= count:
+                        return records[index], match
+            scanned = max(scanned, len(records))
             if self._ended:
                 raise AssertionError(f"{self.name} ended (exit {self.process.wait()}) before {count}x /{label}/;"
                                      " output:\n" + self.output[-4000:])
@@ -224,9 +233,12 @@ class Child:
                 raise AssertionError(f"{self.name}: no {count}x /{label}/ within {timeout:.0f} s; output:\n"
                                      + self.output[-4000:])
             try:
-                if self._new_lines.get(timeout=min(remaining, 0.5)) is None:
-                    self._open_streams -= 1
-                    self._ended = self._open_streams <= 0
+                new = self._new_lines.get(timeout=min(remaining, 0.5))
+                while True:  # every line queued by now: searched together
+                    if new is None:
+                        self._open_streams -= 1
+                        self._ended = self._open_streams <= 0
+                    new = self._new_lines.get_nowait()
             except queue.Empty:
                 if not self._readers and self.process.poll() is not None:
                     self._ended = True
@@ -370,11 +382,12 @@ class StatsChild:
     def __init__(self, child: Child, stats_path: Path):
         self.child = child
         self.stats = stats_path
+        self._records = stats.Follower(stats_path)
 
     @classmethod
     def start(cls, name: str, program: str, args: Sequence[str], stats_path: Path, *,
               env: dict[str, str] | None = None, prefix: Sequence[str] = (),
-              python: Sequence[str] = ()) -> StatsChild:
+              python: Sequence[str] = ()) -> Self:
         """Start ``program`` (a name for :func:`program_command`) as ``name`` with ``--stats stats_path``;
         ``prefix`` goes before the whole command (``ip netns exec ...``), ``python`` before the interpreter."""
         command = program_command(program, *args, "--stats", str(stats_path), python=python)
@@ -387,8 +400,7 @@ class StatsChild:
     def records(self, kind: str, since: float = 0.0, until: float = float("inf"),
                 match: Callable[[Record], bool] = any_record) -> list[Record]:
         """The records of ``kind`` written from ``since`` to before ``until`` (time.time) that ``match`` accepts."""
-        return [record for record in stats.read(self.stats, kind)
-                if since <= record["t"] < until and match(record)]
+        return [record for record in self._records.records(kind) if since <= record["t"] < until and match(record)]
 
     def first(self, kind: str, match: Callable[[Record], bool] = any_record) -> float | None:
         """The time of the first record of ``kind`` that ``match`` accepts (None: none yet)."""
