@@ -217,14 +217,14 @@ class Child:
         # a search of every earlier line at each new one.
         scanned, found = since, 0
         while True:
-            records = self.records
-            for index in range(scanned, len(records)):
+            records, end = self.records, len(self.records)  # the reading thread may append meanwhile: up to end
+            for index in range(scanned, end):
                 match = regex.search(records[index].text)
                 if match:
                     found += 1
                     if found >= count:
                         return records[index], match
-            scanned = max(scanned, len(records))
+            scanned = max(scanned, end)
             if self._ended:
                 raise AssertionError(f"{self.name} ended (exit {self.process.wait()}) before {count}x /{label}/;"
                                      " output:\n" + self.output[-4000:])
