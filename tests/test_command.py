@@ -92,8 +92,6 @@ def test_the_fast_paths_off_are_said_with_why() -> None:
 
 
 def test_ctrl_c_ends_a_benchmark_without_a_traceback(domain_id: int) -> None:
-    import signal
-
     # Without PYTHONUNBUFFERED (conftest takes it out): the program's own stdout says each line as it comes.
     process = subprocess.Popen([*DEFAULT_SIGINT, *AUTOMOTIVE, "bench", "filter", "--domain", str(domain_id)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -105,7 +103,6 @@ def test_ctrl_c_ends_a_benchmark_without_a_traceback(domain_id: int) -> None:
     assert process.returncode == 130 and "Traceback" not in errors, f"{errors} (signals when sent: {state})"
 
 
-
 def test_a_benchmark_whose_reader_leaves_ends_quietly(domain_id: int) -> None:
     """``automotive bench filter | head -1``: its next line meets a closed pipe; no traceback, exit code 0."""
     process = subprocess.Popen([*AUTOMOTIVE, "bench", "filter", "--domain", str(domain_id)],
@@ -115,6 +112,7 @@ def test_a_benchmark_whose_reader_leaves_ends_quietly(domain_id: int) -> None:
     process.stdout.close()  # the reader leaves while the benchmark has lines to print
     errors = process.stderr.read()
     assert process.wait(timeout=60) == 0 and errors == "", errors
+
 
 SCRIPTS = Path(sys.executable).parent  # the console scripts of this installation
 
