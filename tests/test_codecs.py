@@ -437,7 +437,7 @@ def test_gate_refuses_an_untested_cyclone_with_one_line(monkeypatch: pytest.Monk
                                                         caplog: pytest.LogCaptureFixture) -> None:
     codec_hook.disable()
     try:
-        monkeypatch.setattr(codec_hook.metadata, "version", lambda name: "12.0.0")
+        monkeypatch.setattr(codec_hook.gate, "cyclone_version", lambda: "12.0.0")
         monkeypatch.setattr(codec_hook, "_refused", None)
         log = logging.getLogger("test-gate")
         with caplog.at_level(logging.WARNING, logger="test-gate"):
@@ -447,7 +447,7 @@ def test_gate_refuses_an_untested_cyclone_with_one_line(monkeypatch: pytest.Monk
             "codecs: cyclonedds 12.0.0 is not the tested 11.0.1; Cyclone's serializer is used"]
         assert not codec_hook.enabled() and not codec_hook.installed(VisionSensor)
         monkeypatch.setenv("AUTOMOTIVE_CODECS", "off")
-        monkeypatch.setattr(codec_hook.metadata, "version", lambda name: "11.0.1")
+        monkeypatch.setattr(codec_hook.gate, "cyclone_version", lambda: "11.0.1")
         assert not codec_hook.enable(log)
     finally:
         monkeypatch.undo()

@@ -49,7 +49,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-import numpy
 from cyclonedds.core import InstanceState
 from cyclonedds.idl import IdlEnum, IdlStruct, IdlUnion
 from cyclonedds.idl import types as idl_types
@@ -59,6 +58,7 @@ from automotive.bus.checkedreader import CheckedReader, ended_instance
 from automotive.bus.errors import ConfigError
 from automotive.bus.properties import Properties
 from automotive.cyclone.bounds import member_types
+from automotive.cyclone.codecs import numpy_if_loaded
 
 if TYPE_CHECKING:  # Lark itself is imported where an expression is parsed or bound: few programs are given a filter,
     # and importing it is about 40 ms of every program's start
@@ -227,7 +227,8 @@ def _accessor(steps: list[str | int]) -> Callable[[Any], Any]:
             if isinstance(step, str):
                 # An element of a numpy view is a record: its fields are items (as attributes, some would be numpy's
                 # own: a record's .size is 1, not the member size).
-                value = value[step] if isinstance(value, numpy.void) else getattr(value, step)
+                numpy = numpy_if_loaded()
+                value = value[step] if numpy is not None and isinstance(value, numpy.void) else getattr(value, step)
             else:
                 try:
                     value = value[step]

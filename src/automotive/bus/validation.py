@@ -32,19 +32,22 @@ import math
 import typing
 from collections.abc import Callable
 from functools import cache
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl.types import array, sequence, typedef
 
 from automotive.bus import samplerules
 from automotive.bus.badsamples import BadSample
 from automotive.cyclone.bounds import member_types
+from automotive.cyclone.codecs import numpy_if_loaded
 from automotive.types.automotive import ShapeType
 from automotive.types.builtin_interfaces.msg.dds_ import Time_
 from automotive.types.Common import POSIXTimestamp
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_
+
+if TYPE_CHECKING:
+    import numpy as np
 
 # Timestamp types and their (seconds, nanoseconds) members.
 TIMESTAMP_MEMBERS: dict[type, tuple[str, str]] = {
@@ -115,6 +118,8 @@ def _float_fields(dtype: np.dtype[Any]) -> tuple[str, ...]:
 
 def _check_struct_array(values: np.ndarray[Any, Any], path: str) -> BadSample | None:
     """The float fields of a structured array (numpy views of a sequence of fixed-size structs), all at once."""
+    import numpy as np  # imported already: ``values`` is numpy's
+
     fields = _float_fields(values.dtype)
     if fields and values.dtype.isnative and values.dtype.itemsize % 4 == 0 and values.flags.c_contiguous:
         # One sum over the whole array read as float32 words instead of one per field (a list of 2 vision objects:
@@ -147,7 +152,8 @@ def _check_struct_array(values: np.ndarray[Any, Any], path: str) -> BadSample | 
 
 def _elements(element: Checker) -> Checker:
     def check(values: Any, path: str) -> BadSample | None:
-        if isinstance(values, np.ndarray) and values.dtype.names is not None:
+        numpy = numpy_if_loaded()
+        if numpy is not None and isinstance(values, numpy.ndarray) and values.dtype.names is not None:
             return _check_struct_array(values, path)
         for index, value in enumerate(values):
             problem = element(value, f"{path}[{index}]")

@@ -4,7 +4,6 @@ paths (automotive.cyclone) are on in a process started the same way, and if not,
 from __future__ import annotations
 
 import argparse
-import importlib.metadata
 from collections.abc import Sequence
 from typing import Any
 
@@ -12,6 +11,8 @@ DISTRIBUTION = "automotive-databus"
 
 
 def package_version() -> str:
+    import importlib.metadata  # on demand: most programs that offer --version never print it
+
     try:
         return importlib.metadata.version(DISTRIBUTION)
     except importlib.metadata.PackageNotFoundError:  # run from a source tree that was never installed

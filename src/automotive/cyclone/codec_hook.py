@@ -30,7 +30,6 @@ import logging
 import os
 import sys
 import threading
-from importlib import metadata
 from typing import Any
 
 from automotive.cyclone import bounds, gate
@@ -56,10 +55,7 @@ def _why_not() -> str | None:
     reason = gate.why_off()
     if reason is not None:
         return reason
-    try:
-        version = metadata.version("cyclonedds")
-    except metadata.PackageNotFoundError:
-        version = "unknown"
+    version = gate.cyclone_version()
     if version not in TESTED_CYCLONEDDS:
         return f"cyclonedds {version} is not the tested {', '.join(TESTED_CYCLONEDDS)}"
     from cyclonedds.idl._main import IDL

@@ -25,18 +25,21 @@ gate.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from automotive.cyclone import bounds
 from automotive.types import codecs as generated
 
-__all__ = ["Codec", "CodecError", "OverBound", "codec_for", "codecs"]
+if TYPE_CHECKING:
+    import numpy as np
+
+__all__ = ["Codec", "CodecError", "OverBound", "codec_for", "codecs", "numpy_if_loaded"]
 
 
 CodecError = generated.CodecError  # bytes that are not a valid sample of the type, or a value it cannot encode
 OverBound = generated.OverBound  # inside the generated encoders; turned into a BoundError here
+# numpy's module if the process has imported it, else None: how to tell a numpy value without importing numpy
+numpy_if_loaded: Callable[[], Any] = generated.numpy_if_loaded
 generated.EXTRA_BOUNDS = bounds.EXTRA_BOUNDS  # the one registry of the extra bounds (set_extra_bound changes it)
 
 Encoder = Callable[[Any], bytes]
@@ -51,13 +54,14 @@ class Codec:
 
     def __init__(self, data_type: type, label: str, default_xcdr2: bool,
                  encoders: dict[tuple[bool, bool], Encoder], decoders: dict[tuple[bool, bool], Decoder],
-                 element_dtypes: dict[str, np.dtype[Any]], has_octet_blocks: bool):
+                 element_dtypes: dict[str, Any], has_octet_blocks: bool):
         self.data_type = data_type
         self.label = label
         self.default_xcdr2 = default_xcdr2  # what Cyclone writes when no representation is asked for
         self._encoders = encoders  # (xcdr2, big endian) -> encoder
         self._decoders = decoders  # (xcdr2, big endian) -> decoder of the body
-        self._element_dtypes = element_dtypes  # little-endian XCDR1 dtypes of the members decoded as numpy views
+        # little-endian XCDR1 dtypes of the members decoded as numpy views, made at first use (generated LazyDtype)
+        self._element_dtypes = element_dtypes
         self.view_members = tuple(element_dtypes)
         # The type holds octet sequences or arrays (moved as blocks of bytes): automotive.fastpath handles it too.
         self.has_octet_blocks = has_octet_blocks
@@ -108,17 +112,19 @@ class Codec:
 
     def with_dataclasses(self, sample: Any) -> Any:
         """``sample`` with numpy arrays in its sequences of fixed-size structs turned into dataclasses."""
-        if any(isinstance(getattr(sample, member), np.ndarray) for member in self.view_members):
+        if any(generated.is_array(getattr(sample, member)) for member in self.view_members):
             return self.decode(self.encode(sample))
         return sample
 
     def element_dtype(self, member: str) -> np.dtype[Any]:
         """The numpy dtype (little endian) of the elements of ``member``, a sequence of fixed-size structs."""
         try:
-            return self._element_dtypes[member]
+            lazy = self._element_dtypes[member]
         except KeyError:
             raise KeyError(f"{self.label}.{member} is not a sequence of fixed-size structs "
                            f"(those are: {', '.join(self._element_dtypes) or 'none'})") from None
+        dtype: np.dtype[Any] = lazy.get()
+        return dtype
 
 
 _CODECS: dict[type, Codec] = {data_type: Codec(data_type, *parts)
