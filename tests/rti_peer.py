@@ -217,11 +217,20 @@ class RtiPeer:
                    accept: Callable[[dict[str, Any]], bool] | None = None) -> list[dict[str, Any]]:
         """Take samples from reader ``name`` until ``count`` accepted ones arrived or ``timeout`` s passed;
         returns the accepted samples (possibly fewer than ``count``: the caller asserts)."""
+        return self._until(name, count, timeout,
+                           lambda: [s for s in self.take(name) if accept is None or accept(s)])
+
+    def count_until(self, name: str, count: int = 1, timeout: float = 15.0) -> int:
+        """Take samples from reader ``name`` until ``count`` arrived or ``timeout`` s passed; how many. Nothing is
+        converted (see take_count): for a test that asks whether a flow arrives, not what it holds."""
+        return len(self._until(name, count, timeout, lambda: self._take(name, lambda sample: None)))
+
+    def _until(self, name: str, count: int, timeout: float, take: Callable[[], list[T]]) -> list[T]:
         reader = self._inputs[name]
-        received: list[dict[str, Any]] = []
+        received: list[T] = []
         deadline = time.monotonic() + timeout
         while len(received) < count:
-            received.extend(s for s in self.take(name) if accept is None or accept(s))
+            received.extend(take())
             remaining = deadline - time.monotonic()
             if len(received) >= count or remaining <= 0:
                 break

@@ -112,7 +112,7 @@ def test_a_late_rti_participant_with_its_defaults_receives_every_flow(system: Ru
         times = matched_within("a late RTI participant", checks, LATE_JOIN_BOUND_S)
         print("late RTI participant matched after (s):", {name: round(t, 2) for name, t in times.items()})
         for name in FLOWS:
-            assert peer.take_until(name, 1, timeout=30), f"the late RTI reader of {name} received nothing"
+            assert peer.count_until(name, 1, timeout=30), f"the late RTI reader of {name} received nothing"
         peer.write("Circle", {"color": "ORANGE", "x": 120, "y": 120, "shapesize": 40})
         system.wait_app_line("lidar", "shape ORANGE appeared", shapes_before, timeout=30)
 
