@@ -29,8 +29,8 @@ def adopt_orphans() -> None:
 
 def _process_table() -> dict[int, tuple[int, str]]:
     """Every process of the machine: pid -> (parent pid, state letter), from /proc/PID/stat. What psutil's
-    ``children()`` reads too, once here for a whole check (psutil read the table once per call, three calls a test: the
-    suite's workers spent about a fifth of their CPU on it, 2026-11-28)."""
+    ``children()`` reads too, once here for a whole check (psutil's read it at each of three calls a test: about a
+    tenth of py-spy's samples of the suite's workers, 2026-11-28)."""
     table: dict[int, tuple[int, str]] = {}
     for entry in os.scandir("/proc"):
         if not entry.name.isdigit():

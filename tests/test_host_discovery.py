@@ -210,6 +210,7 @@ def test_tools_started_before_the_system_find_every_application(apps: AppRunner,
                        what="the first announcements of both tools")
             launcher = apps.start_command("launch", on_defaults(lan.host, *launch_command(domain_id, tmp_path)))
             assert_reads_every_flow_and_every_application_finds_it(plain, timeout=TOOL_FIRST_TIMEOUT_S)
+            plain.stop()  # done with: the camera's frames would cost it and the camera CPU for the rest of the scan
             # Its scan found the writer and its type (else it says so and ends), then its subscriber printed samples.
             subscribe.wait_for(r"^PlatformStatus\($", timeout=SUBSCRIBE_SCAN_S + 30)
             subscribe.wait_for(r"^\s+vehSpd=-?[\d.]+,$", timeout=10)

@@ -109,6 +109,9 @@ def test_tools_started_before_the_system_find_every_application(apps: AppRunner,
                        what="the first announcements of both tools")
             launcher = apps.start_command("launch", on_defaults(host, *launch_command(domain_id, tmp_path)))
             assert_reads_every_flow_and_every_application_finds_it(plain, timeout=TOOL_FIRST_TIMEOUT_S)
+            # Done with: for the rest of ps's scan, the camera's 4 MiB frames would cost it and the camera a third of
+            # a core each (a third of this test's CPU, 2026-11-28).
+            plain.stop()
             assert ps.wait_exit(timeout=PS_FIRST_SCAN_S + 30) == 0, ps.output
             assert ps_names(ps.output) >= set(APPS), ps.output
             assert "Traceback" not in launcher.output
