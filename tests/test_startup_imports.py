@@ -37,7 +37,7 @@ def test_a_program_that_needs_no_numpy_imports_neither_it_nor_importlib_metadata
 
 def test_the_shape_application_publishes_and_subscribes_without_numpy(domain_id: int) -> None:
     for role in ("-P", "-S"):
-        code = (f"import sys\nfrom automotive.tools.shapes.shape_main import main\n"
+        code = ("from automotive.tools.shapes.shape_main import main\n"
                 f"assert main(['{role}', '-t', 'Square', '-d', '{domain_id}', '--num-iterations', '2']) == 0")
         assert loaded_after(code) == [], role
 

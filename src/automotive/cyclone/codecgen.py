@@ -1005,7 +1005,7 @@ def numpy_if_loaded():
 
 
 def is_array(value):
-    numpy = modules.get("numpy")
+    numpy = numpy_if_loaded()
     return numpy is not None and value.__class__ is numpy.ndarray
 
 

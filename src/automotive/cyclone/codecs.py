@@ -112,7 +112,9 @@ class Codec:
 
     def with_dataclasses(self, sample: Any) -> Any:
         """``sample`` with numpy arrays in its sequences of fixed-size structs turned into dataclasses."""
-        if any(generated.is_array(getattr(sample, member)) for member in self.view_members):
+        numpy = numpy_if_loaded()
+        if numpy is not None and any(isinstance(getattr(sample, member), numpy.ndarray)
+                                     for member in self.view_members):
             return self.decode(self.encode(sample))
         return sample
 

@@ -49,6 +49,7 @@ _lock = threading.Lock()
 _warned = False
 
 
+@cache  # the gate and the codec hook both ask, once each per process
 def cyclone_version() -> str:
     """The installed cyclonedds distribution's version. Read from its METADATA beside the package when pip laid it out
     so (one ``cyclonedds-*.dist-info``): what ``importlib.metadata.version`` reads, without importing
