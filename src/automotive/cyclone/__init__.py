@@ -6,6 +6,8 @@
 - :mod:`.bounds`: IDL bounds checked before a write, with a clear message (Cyclone's type-hint resolution);
 - :mod:`.codec_hook`: the generated fast codecs (:mod:`.codecs`, ``automotive/types/codecs.py``) as the serializer
   of every type they cover (Cyclone's ``IDL.serialize``/``deserialize`` replaced per type);
+- :mod:`.typeinfo`: each type's XTypes type information announced from a table made at build time, not computed by
+  Cyclone Python at each program's start;
 - :mod:`.liveliness`: a writer's liveliness asserted without writing (``dds_assert_liveliness``, ctypes);
 - :mod:`.matched`: a writer's matched readers and a reader's matched writers, asked past a race of Cyclone DDS Python
   (public API; every program asks through it).
@@ -31,8 +33,9 @@ def start(log: logging.Logger | None = None) -> bool:
     """
     if not enabled(log):
         return False
-    from automotive.cyclone import codec_hook, fastpath
+    from automotive.cyclone import codec_hook, fastpath, typeinfo
 
     fastpath.enable()
+    typeinfo.enable()
     codec_hook.enable(log)  # the generated codecs; one warning line and Cyclone's serializer if they cannot be used
     return True

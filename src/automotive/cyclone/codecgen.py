@@ -1061,7 +1061,7 @@ def struct_types(package: str) -> Iterator[type]:
     definition order."""
     root = importlib.import_module(package)
     modules = sorted(info.name for info in pkgutil.walk_packages(root.__path__, package + ".")
-                     if not info.name.endswith(".codecs"))
+                     if not info.name.endswith((".codecs", ".typeinfo")))  # the generated modules beside them
     for module_name in modules:
         module = importlib.import_module(module_name)
         for value in vars(module).values():
