@@ -20,12 +20,12 @@ not here.
 from __future__ import annotations
 
 import difflib
-import importlib
 import sys
 from collections.abc import Callable, Sequence
 from typing import NamedTuple, cast
 
 from automotive.bus.cli import EXIT_BAD_INPUT, ArgumentParser, set_command_name
+from automotive.start import import_program
 
 PROG = "automotive"
 
@@ -107,7 +107,7 @@ def _unknown(prog: str, kind: str, name: str, commands: dict[str, Command]) -> i
 
 def _call(command: Command, argv: list[str], name: str) -> int:
     set_command_name(name)
-    main = cast(Callable[[list[str]], int], importlib.import_module(command.module).main)
+    main = cast(Callable[[list[str]], int], import_program(command.module).main)
     try:
         return main(argv)
     except KeyboardInterrupt:  # Ctrl-C in a program that does not catch it (a benchmark): an end, not a traceback

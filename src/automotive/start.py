@@ -22,13 +22,14 @@ once when it ended. A reader of stdout that leaves early (``| head``) ends the p
 
 from __future__ import annotations
 
+import gc
 import importlib
 import io
 import os
 import signal
 import sys
 from collections.abc import Callable
-from types import FrameType
+from types import FrameType, ModuleType
 from typing import Any, cast
 
 EXIT_INTERRUPTED = 130  # the shell's code for "ended by SIGINT"
@@ -41,6 +42,20 @@ class Stopped(BaseException):
 
 def _raise_stopped(signum: int, frame: FrameType | None) -> None:
     raise Stopped(signum)
+
+
+def import_program(module: str) -> ModuleType:
+    """Import a program with the cyclic garbage collector paused. An import makes tens of thousands of objects that all
+    live on (modules, classes, the dataclasses' generated functions: Cyclone's XTypes and QoS classes, the generated
+    types), and the collector, triggered every 700 allocations, searched them about 120 times for garbage there is
+    none of: 5 % of a program's start-up here."""
+    paused = gc.isenabled()
+    gc.disable()
+    try:
+        return importlib.import_module(module)
+    finally:
+        if paused:
+            gc.enable()
 
 
 def _say(name: str, signum: int) -> None:
@@ -59,7 +74,7 @@ def start(module: str, name: str, argv: list[str] | None = None) -> int:
     handled = [sig for sig in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(sig) != signal.SIG_IGN]
     previous: dict[int, Any] = {sig: signal.signal(sig, end_now) for sig in handled}
     try:
-        main = cast(Callable[[list[str] | None], int], importlib.import_module(module).main)
+        main = cast(Callable[[list[str] | None], int], import_program(module).main)
         for sig in handled:  # running: signals unwind the program
             signal.signal(sig, _raise_stopped if sig == signal.SIGTERM else previous[sig])
         return main(argv)

@@ -31,7 +31,7 @@ from automotive.bus.ports import domain_base, highest_port
 from automotive.bus.qos import QosProfiles
 from automotive.bus.stats import Stats
 from automotive.bus.status import EventCounts, EventHook, StatusListener
-from automotive.cyclone import bounds, codec_hook, hostonly
+from automotive.cyclone import bounds, codec_hook, hostonly, typeinfo
 from automotive.cyclone.matched import matched_publications, matched_subscriptions
 
 T = TypeVar("T")
@@ -150,6 +150,7 @@ class Databus:
                  network: NetworkConfig | None = None, name: str = "automotive", stats: Stats | None = None,
                  reporter: BadSampleReporter | None = None):
         memtune.settle_malloc()  # before the first receive buffer: resident memory settles (automotive.bus.memtune)
+        typeinfo.enable()  # the types' XTypes information from the build-time table (the version gate decides)
         self.name = name
         self.stats = stats or Stats(None, name)
         self.reporter = reporter  # of bad samples; None: the process's (automotive.bus.badsamples)
