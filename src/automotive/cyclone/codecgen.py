@@ -1127,15 +1127,20 @@ def generate(classes: list[type], header: str, source: str) -> str:
     return "\n".join(out)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="codecgen", description=__doc__.splitlines()[0] if __doc__ else None)
+def generated_types(prog: str, doc: str | None, argv: list[str] | None) -> list[type]:
+    """The struct types of the folder a generator's command line names (TYPES_DIR, a fresh idlc output)."""
+    parser = argparse.ArgumentParser(prog=prog, description=doc.splitlines()[0] if doc else None)
     parser.add_argument("types_dir", type=Path, help="the folder idlc generated automotive/types into")
     args = parser.parse_args(argv)
     import automotive.types
 
-    # Import the types from the folder given (a fresh idlc output), not the committed ones.
+    # Import the types from the folder given, not the committed ones.
     automotive.types.__path__[:] = [str(args.types_dir.resolve())]
-    classes = list(struct_types("automotive.types"))
+    return list(struct_types("automotive.types"))
+
+
+def main(argv: list[str] | None = None) -> int:
+    classes = generated_types("codecgen", __doc__, argv)
     text = generate(classes, "Fast CDR codecs for every struct type of the package's IDL.", "the generated types")
     sys.stdout.write(text)
     return 0

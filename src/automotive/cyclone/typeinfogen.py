@@ -16,12 +16,10 @@ runs. ``tests/test_typeinfo.py`` checks them against Cyclone's own computation.
 
 from __future__ import annotations
 
-import argparse
 import sys
-from pathlib import Path
 
 from automotive.cyclone import gate
-from automotive.cyclone.codecgen import class_module, class_ref, module_alias, struct_types
+from automotive.cyclone.codecgen import class_module, class_ref, generated_types, module_alias
 
 
 def type_information(cls: type) -> tuple[bytes, bytes]:
@@ -50,14 +48,7 @@ def generate(classes: list[type], version: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="typeinfogen", description=__doc__.splitlines()[0] if __doc__ else None)
-    parser.add_argument("types_dir", type=Path, help="the folder idlc generated automotive/types into")
-    args = parser.parse_args(argv)
-    import automotive.types
-
-    # Import the types from the folder given (a fresh idlc output), not the committed ones.
-    automotive.types.__path__[:] = [str(args.types_dir.resolve())]
-    sys.stdout.write(generate(list(struct_types("automotive.types")), gate.cyclone_version()))
+    sys.stdout.write(generate(generated_types("typeinfogen", __doc__, argv), gate.cyclone_version()))
     return 0
 
 
