@@ -49,12 +49,12 @@ def import_program(module: str) -> ModuleType:
     live on (modules, classes, the dataclasses' generated functions: Cyclone's XTypes and QoS classes, the generated
     types), and the collector, triggered every 700 allocations, searched them about 120 times for garbage there is
     none of: 5 % of a program's start-up here."""
-    paused = gc.isenabled()
+    was_enabled = gc.isenabled()
     gc.disable()
     try:
         return importlib.import_module(module)
     finally:
-        if paused:
+        if was_enabled:
             gc.enable()
 
 
