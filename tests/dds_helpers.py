@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -16,6 +17,7 @@ from automotive.bus.network import NetworkConfig
 from automotive.bus.qos import QosProfiles
 
 ROOT = Path(__file__).resolve().parent.parent
+CYCLONEDDS_CLI = str(Path(sys.executable).parent / "cyclonedds")  # the cyclonedds package's console script
 
 
 def make_bus(domain_id: int, qos_file: Path | None = None) -> Databus:

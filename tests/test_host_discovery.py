@@ -40,7 +40,7 @@ from typing import Any
 
 import pytest
 from apprunner import AppRunner, CommandProcess
-from dds_helpers import wait_until
+from dds_helpers import CYCLONEDDS_CLI, wait_until
 from lan_host import HOST_ADDRESS, LAN_ADDRESS, READY, LanHost, frames
 
 from automotive.bus.ports import domain_base
@@ -50,7 +50,6 @@ from automotive.tools.support.children import program_command
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPT = Path(__file__).resolve()
-CYCLONEDDS_CLI = str(Path(sys.executable).parent / "cyclonedds")  # the cyclonedds package's console script
 URI_VARIABLE = "CYCLONEDDS_URI"
 LIBRARY = "AutomotiveLibrary"
 APPS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "camera_pub",

@@ -31,12 +31,11 @@ from pathlib import Path
 
 import pytest
 from apprunner import AppRunner, CommandProcess
-from dds_helpers import wait_until
+from dds_helpers import CYCLONEDDS_CLI, wait_until
 from lan_host import READY, SNIFFER, frames
 from shape_cases import CYCLONE_DEFAULTS_PAIRS, OURS_TO_CYCLONE, Case
 from test_host_discovery import (
     APPS,
-    CYCLONEDDS_CLI,
     LATE_S,
     STATUS_INTERVAL_S,
     TOOL_FIRST_TIMEOUT_S,

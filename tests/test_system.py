@@ -6,11 +6,11 @@ from __future__ import annotations
 import re
 import signal
 import subprocess
-import sys
 import threading
 from pathlib import Path
 
 import pytest
+from dds_helpers import CYCLONEDDS_CLI
 
 from automotive import config
 from automotive.bus import stats
@@ -158,10 +158,6 @@ def test_killed_collision_avoidance_loses_liveliness_and_recovers(apps, domain_i
     assert [record["alive"] for record in stats.read(records, "source")] == [False, True]
 
 
-def cyclonedds_tool() -> str:
-    return str(Path(sys.executable).with_name("cyclonedds"))
-
-
 def test_cyclonedds_tool_lists_our_topics_and_decodes_alerts(apps, domain_id: int,  # type: ignore[no-untyped-def]
                                                               tmp_path: Path) -> None:
     domain = ["--domain", str(domain_id)]
@@ -172,7 +168,7 @@ def test_cyclonedds_tool_lists_our_topics_and_decodes_alerts(apps, domain_id: in
     avoidance.wait_for(r"ALERT: driver attention needed")
     fusion.wait_for(r"published list")
 
-    listing = subprocess.run([cyclonedds_tool(), "ls", "-i", str(domain_id), "-r", "3s", "--suppress-progress-bar",
+    listing = subprocess.run([CYCLONEDDS_CLI, "ls", "-i", str(domain_id), "-r", "3s", "--suppress-progress-bar",
                               "--color", "none"], capture_output=True, text=True, timeout=60).stdout
     for topic, type_name in [("AlertTopic", "Alerts::DriverAlerts"), ("VisionTopic", "Vision::VisionSensor"),
                              ("SensorObjects", "Sensor::SensorObjectList"),
@@ -181,7 +177,7 @@ def test_cyclonedds_tool_lists_our_topics_and_decodes_alerts(apps, domain_id: in
     assert "Participant collision_avoidance" in listing
 
     # `cyclonedds subscribe` prints samples until stopped: read until a decoded alert shows up, then stop it.
-    subscriber = subprocess.Popen([cyclonedds_tool(), "subscribe", "AlertTopic", "-i", str(domain_id), "-r", "3s",
+    subscriber = subprocess.Popen([CYCLONEDDS_CLI, "subscribe", "AlertTopic", "-i", str(domain_id), "-r", "3s",
                                    "--suppress-progress-bar", "--color", "none", "--qos", "scan-random"],
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     timer = threading.Timer(60, subscriber.kill)  # bound the wait even if the tool never prints

@@ -4,20 +4,16 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 import time
-from pathlib import Path
 
 import pytest
 from cyclonedds.idl._support import Endianness
 from cyclonedds.idl._xt_builder import XTBuilder
-from dds_helpers import make_bus
+from dds_helpers import CYCLONEDDS_CLI, make_bus
 
 from automotive.cyclone import gate, typeinfo
 from automotive.types.Platform import PlatformStatus
 from automotive.types.typeinfo import CYCLONEDDS_VERSION, TYPE_INFO
-
-CYCLONEDDS_CLI = str(Path(sys.executable).parent / "cyclonedds")  # the cyclonedds package's console script
 
 
 def cyclones_own(data_type: type) -> tuple[bytes, bytes]:
