@@ -12,6 +12,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -59,3 +60,61 @@ assert numpy_if_loaded() is not None and viewed.objects["size"][1, 2] == 1.75
 assert codec.encode(viewed) == data and codec.with_dataclasses(viewed) == sample
 """
     assert loaded_after(code) == ["numpy"]
+
+
+# -- modules a dependency imports but uses only later (automotive.start.DEFERRED) ------------------------------------
+
+APPLICATIONS = ["automotive.apps.vision", "automotive.apps.lidar", "automotive.apps.sensor_fusion",
+                "automotive.apps.collision_avoidance", "automotive.apps.vehicle_platform", "automotive.apps.hmi",
+                "automotive.apps.camera_pub", "automotive.apps.camera_sub"]
+# What the deferred modules would bring in with them.
+NOT_LOADED = ("asyncio", "ssl", "urllib.request", "http.client", "email")
+
+
+def run_code(code: str) -> str:
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                            env={**os.environ, "AUTOMOTIVE_LOG_LEVEL": "error"})
+    assert result.returncode == 0, result.stderr
+    return result.stdout
+
+
+@pytest.mark.parametrize("module", APPLICATIONS)
+def test_an_application_started_loads_none_of_the_deferred_modules(module: str) -> None:
+    # Fails when a new version of a dependency uses a deferred module as it loads: then take it out of DEFERRED.
+    code = (f"import sys, json\nfrom automotive.start import import_program\nimport_program({module!r})\n"
+            f"print(json.dumps(sorted(m for m in {NOT_LOADED!r} if m in sys.modules)))")
+    assert json.loads(run_code(code).splitlines()[-1]) == []
+
+
+def test_the_dependencies_use_the_real_modules_through_their_stand_ins(domain_id: int, tmp_path: Path) -> None:
+    page = tmp_path / "page.txt"
+    page.write_text("read through urllib.request\n")
+    code = f"""
+import types
+from automotive.start import import_program
+import_program("automotive.apps.vision")
+import cyclonedds.core, xml.sax.saxutils
+from cyclonedds.core import GuardCondition, WaitSet
+from cyclonedds.domain import DomainParticipant
+from cyclonedds.util import duration
+
+# Cyclone's async wait (WaitSet.wait_async), through cyclonedds.core's stand-in of asyncio.
+participant = DomainParticipant({domain_id})
+waitset, guard = WaitSet(participant), GuardCondition(participant)
+waitset.attach(guard)
+guard.set(True)
+loop = cyclonedds.core.asyncio.new_event_loop()
+assert loop.run_until_complete(waitset.wait_async(duration(seconds=10))) == 1
+loop.close()
+
+# xml.sax.saxutils's URL input, through its stand-in of urllib.request.
+source = xml.sax.saxutils.prepare_input_source({page.as_uri()!r})
+text = source.getByteStream().read().decode().strip()
+
+# Everyone importing them now gets the real modules.
+import asyncio, urllib.request
+assert type(asyncio) is types.ModuleType and type(urllib.request) is types.ModuleType, (asyncio, urllib.request)
+assert cyclonedds.core.asyncio.get_event_loop_policy() is asyncio.get_event_loop_policy()
+print(text)
+"""
+    assert run_code(code).splitlines()[-1] == "read through urllib.request"

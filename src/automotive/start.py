@@ -30,7 +30,10 @@ import signal
 import sys
 from collections.abc import Callable
 from types import FrameType, ModuleType
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
+
+if TYPE_CHECKING:
+    from importlib.machinery import ModuleSpec
 
 EXIT_INTERRUPTED = 130  # the shell's code for "ended by SIGINT"
 
@@ -44,16 +47,100 @@ def _raise_stopped(signum: int, frame: FrameType | None) -> None:
     raise Stopped(signum)
 
 
+# Modules of the standard library that a dependency imports as it loads but uses only in functions no program here calls
+# at its start. While that dependency loads, the module is a stand-in (:class:`_StandIn`) that imports the real one on
+# first use; 55-60 ms of CPU less at every program's start here (asyncio pulls in ssl; urllib.request pulls in
+# http.client, email and ssl). Each entry is a fact about the dependency's pinned version, checked by
+# tests/test_startup_imports.py: the dependency's import leaves the module unloaded, and its use still works.
+DEFERRED: dict[str, tuple[str, ...]] = {
+    "cyclonedds": ("asyncio",),  # only the async read and wait methods use it (cyclonedds/core.py, sub.py)
+    # only xml.sax.saxutils's prepare_input_source uses it, which javaproperties' XML functions do not call
+    "javaproperties": ("urllib.request",),
+}
+
+
+class _StandIn(ModuleType):
+    """Where a dependency imported a deferred module: the first attribute asked for imports the real module (its
+    attributes are kept here once asked for). Bound only by the dependency's own modules: once the dependency has
+    loaded, ``import`` gives everyone else the real module (a submodule's stand-in stays its package's attribute,
+    which the dependency reads, until the real submodule is imported)."""
+
+    def __getattr__(self, attribute: str) -> Any:
+        if attribute.startswith("__"):  # __path__, __file__...: no import machinery treats this as the real module
+            raise AttributeError(attribute)
+        name = self.__name__
+        if sys.modules.get(name) is self:
+            sys.modules.pop(name, None)
+        value = getattr(importlib.import_module(name), attribute)
+        setattr(self, attribute, value)
+        return value
+
+
+def _load_deferring(deferred: tuple[str, ...], load: Callable[[ModuleType], None], module: ModuleType) -> None:
+    """Load the dependency ``module`` (its loader's exec_module, ``load``) with stand-ins for ``deferred`` in
+    sys.modules (and as attributes of their packages, as an import sets them); stand-ins nobody used are taken out
+    of sys.modules afterwards."""
+    placed: list[_StandIn] = []
+    for deferred_name in deferred:
+        if deferred_name in sys.modules:
+            continue
+        package, _, child = deferred_name.rpartition(".")
+        stand_in = _StandIn(deferred_name)
+        if package:
+            setattr(importlib.import_module(package), child, stand_in)
+        sys.modules[deferred_name] = stand_in
+        placed.append(stand_in)
+    try:
+        load(module)
+    finally:
+        for stand_in in placed:
+            if sys.modules.get(stand_in.__name__) is stand_in:
+                del sys.modules[stand_in.__name__]
+
+
+class _DeferringFinder:
+    """Finds the dependencies of DEFERRED through the rest of sys.meta_path and loads them with stand-ins (a meta path
+    finder; not importlib.abc's subclass, whose import costs more than this saves)."""
+
+    def find_spec(self, name: str, path: Any = None, target: ModuleType | None = None) -> ModuleSpec | None:
+        deferred = DEFERRED.get(name)
+        if deferred is None:
+            return None
+        for finder in sys.meta_path[sys.meta_path.index(self) + 1:]:
+            spec = finder.find_spec(name, path, target) if hasattr(finder, "find_spec") else None
+            if spec is not None:
+                break
+        else:
+            return None
+        loader = spec.loader
+        if loader is None or not hasattr(loader, "exec_module"):
+            return spec
+        load = loader.exec_module
+
+        def exec_module(module: ModuleType) -> None:
+            del loader.exec_module  # type: ignore[attr-defined]  # the loader's own method again
+            _load_deferring(deferred, load, module)
+
+        loader.exec_module = exec_module  # type: ignore[method-assign]  # this loader instance, this one load
+        return spec
+
+
 def import_program(module: str) -> ModuleType:
-    """Import a program with the cyclic garbage collector paused. An import makes tens of thousands of objects that all
-    live on (modules, classes, the dataclasses' generated functions: Cyclone's XTypes and QoS classes, the generated
-    types), and the collector, triggered every 700 allocations, searched them about 120 times for garbage there is
-    none of: 5 % of a program's start-up here."""
+    """Import a program with the cyclic garbage collector paused and the modules of DEFERRED deferred. An import
+    makes tens of thousands of objects that all live on (modules, classes, the dataclasses' generated functions:
+    Cyclone's XTypes and QoS classes, the generated types), and the collector, triggered every 700 allocations,
+    searched them about 120 times for garbage there is none of: 5 % of a program's start-up here."""
     was_enabled = gc.isenabled()
     gc.disable()
+    finder = None
+    if not any(isinstance(installed, _DeferringFinder) for installed in sys.meta_path):
+        finder = _DeferringFinder()
+        sys.meta_path.insert(0, finder)
     try:
         return importlib.import_module(module)
     finally:
+        if finder is not None:
+            sys.meta_path.remove(finder)
         if was_enabled:
             gc.enable()
 
