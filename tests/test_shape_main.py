@@ -54,7 +54,10 @@ from automotive.types.shape import ShapeType as SuiteShapeType
 from automotive.wire.rawsample import RawWriter
 
 ROOT = Path(__file__).resolve().parent.parent
-OURS = Implementation("ours", [sys.executable, "-m", "automotive.tools.shapes.shape_main"])
+# Started as `automotive shape-main` starts it: through automotive.start (its import, its signals), without the
+# dispatcher.
+SHAPE_MAIN = [sys.executable, "-m", "automotive.start", "automotive.tools.shapes.shape_main"]
+OURS = Implementation("ours", SHAPE_MAIN)
 # Cyclone's application on Cyclone's defaults: no CYCLONEDDS_URI at all (the tests set one for every process).
 CYCLONE_DEFAULTS = Implementation("cyclone-defaults", ["env", "-u", "CYCLONEDDS_URI", sys.executable,
                                                        str(ROOT / "tests" / "cyclone_shape_peer.py")])
@@ -148,8 +151,7 @@ def test_on_its_defaults_it_meets_cyclones_application_on_its_defaults_in_one_ho
     (["-P", "-t", "Square", "--bogus"], r"unrecognized arguments: --bogus"),
 ])
 def test_bad_command_lines_end_with_one_line(args: list[str], pattern: str) -> None:
-    result = subprocess.run([sys.executable, "-m", "automotive.tools.shapes.shape_main", *args], capture_output=True,
-                            text=True, cwd=ROOT, timeout=60)
+    result = subprocess.run([*SHAPE_MAIN, *args], capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert_one_line_error(result, rf"^automotive shape-main: .*{pattern}")
 
 
@@ -158,8 +160,8 @@ def test_an_impossible_domain_is_refused_in_the_words_of_every_program(text: str
     with pytest.raises(ValueError) as shared:  # what --domain, -D config.domainId and the launcher say
         check_domain_id(text)
     assert str(shared.value) == f"expected a domain id 0..231, not '{text}'"
-    result = subprocess.run([sys.executable, "-m", "automotive.tools.shapes.shape_main", "-S", "-t", "Square",
-                             "-d", text], capture_output=True, text=True, cwd=ROOT, timeout=60)
+    result = subprocess.run([*SHAPE_MAIN, "-S", "-t", "Square", "-d", text], capture_output=True, text=True, cwd=ROOT,
+                            timeout=60)
     assert_one_line_error(result, "^" + re.escape(f"automotive shape-main: -d: {shared.value} (automotive shape-main "
                                                   "-h shows the options)") + "$")
     assert result.stdout == "", result.stdout
@@ -194,7 +196,7 @@ def test_a_user_uri_is_layered_over_its_configuration_and_what_it_replaces_said_
 
 
 def test_an_unreadable_user_uri_is_one_line(tmp_path: Path) -> None:
-    result = subprocess.run([sys.executable, "-m", "automotive.tools.shapes.shape_main", "-S", "-t", "Square"],
+    result = subprocess.run([*SHAPE_MAIN, "-S", "-t", "Square"],
                             capture_output=True, text=True, cwd=ROOT, timeout=60,
                             env={**os.environ, "CYCLONEDDS_URI": f"{tmp_path}/missing.xml"})
     assert_one_line_error(result, rf"^automotive shape-main: CYCLONEDDS_URI: file '{tmp_path}/missing.xml' not found")
@@ -206,8 +208,7 @@ def test_sigint_while_ending_keeps_the_exit_code(domain_id: int) -> None:
     supported': the exit code stays 2 (it was -2, the signal, once Python had given its handler back)."""
     import signal
 
-    command = [sys.executable, "-m", "automotive.tools.shapes.shape_main", "-S", "-t", "Square", "--coherent",
-               "--access-scope", "i", "-d", str(domain_id)]
+    command = [*SHAPE_MAIN, "-S", "-t", "Square", "--coherent", "--access-scope", "i", "-d", str(domain_id)]
     with subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) as process:
         assert process.stdout is not None
         printed = ""
