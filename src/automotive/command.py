@@ -19,7 +19,6 @@ not here.
 
 from __future__ import annotations
 
-import difflib
 import sys
 from collections.abc import Callable, Sequence
 from typing import NamedTuple, cast
@@ -99,6 +98,8 @@ def _parser(prog: str, description: str, epilog: str, choices: str) -> ArgumentP
 
 
 def _unknown(prog: str, kind: str, name: str, commands: dict[str, Command]) -> int:
+    import difflib  # only for a misspelt name: not part of every start
+
     close = difflib.get_close_matches(name, list(commands), n=1)
     hint = f"; did you mean '{close[0]}'?" if close else f"; expected one of: {', '.join(commands)}"
     print(f"{prog}: unknown {kind} '{name}'{hint} ({prog} --help lists them)", file=sys.stderr)

@@ -12,7 +12,6 @@ notes every read of a key the declaration lacks (a defect of the declaration, wh
 
 from __future__ import annotations
 
-import difflib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,6 +74,8 @@ class PropertyKeys:
             if key.count(".") == prefix.count("."):  # shaped as the family's members: a misspelt prefix
                 candidates.add(prefix + key.rpartition(".")[2])
         by_lower = {candidate.lower(): candidate for candidate in sorted(candidates)}
+        import difflib  # only for a misspelt name: not part of every start
+
         close = difflib.get_close_matches(key.lower(), list(by_lower), n=1, cutoff=0.8)
         return by_lower[close[0]] if close else None
 
