@@ -18,8 +18,10 @@ from apprunner import AppRunner
 from automotive.apps.hmi import AlertView, ConsoleUI, Shown
 from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE
 from automotive.tools.launch.display import Console
+from automotive.tools.support.children import program_command
 
-LAUNCH = [sys.executable, "-m", "automotive.tools.launch.launch"]
+# As scripts/launch starts it: through automotive.start (its import, its signals).
+LAUNCH = program_command("launch")
 FAST_STATUS = ["-D", "config.statusInterval=0.5"]  # the status line every half second instead of every 5 s
 
 
@@ -40,7 +42,7 @@ def quiet_env() -> dict[str, str]:
 
 
 def test_an_application_alone_shows_status_lines_not_samples(apps: AppRunner, domain_id: int) -> None:
-    vision = apps.start_command("vision", [sys.executable, "-m", "automotive.apps.vision", "--domain", str(domain_id),
+    vision = apps.start_command("vision", [*program_command("vision"), "--domain", str(domain_id),
                                            "-D", "config.pubInterval=20", *FAST_STATUS], env=quiet_env())
     vision.wait_for(r"^\S+ vision: status: out VisionTopic [\d.]+/s; sample \d+: \d+ object\(s\)$", count=3)
     assert vision.count("published sample") == 0
@@ -48,7 +50,7 @@ def test_an_application_alone_shows_status_lines_not_samples(apps: AppRunner, do
 
 
 def test_verbose_shows_every_sample_marked_debug(apps: AppRunner, domain_id: int) -> None:
-    vision = apps.start_command("vision", [sys.executable, "-m", "automotive.apps.vision", "--domain", str(domain_id),
+    vision = apps.start_command("vision", [*program_command("vision"), "--domain", str(domain_id),
                                            "-D", "config.pubInterval=20", "-v"], env=quiet_env())
     line = vision.wait_for(r"published sample 3:")
     assert re.match(DEBUG_LINE_PATTERN, line), line
@@ -56,7 +58,7 @@ def test_verbose_shows_every_sample_marked_debug(apps: AppRunner, domain_id: int
 
 def test_a_closed_pipe_ends_an_application_quietly(domain_id: int) -> None:
     """``automotive-vision -v | head -3``: once the reader is gone the application stops, exit 0, no traceback."""
-    process = subprocess.Popen([sys.executable, "-m", "automotive.apps.vision", "--domain", str(domain_id), "-v",
+    process = subprocess.Popen([*program_command("vision"), "--domain", str(domain_id), "-v",
                                 "-D", "config.pubInterval=10"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True, env={**os.environ, **quiet_env()})
     assert process.stdout is not None and process.stderr is not None

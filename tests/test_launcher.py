@@ -24,8 +24,9 @@ from automotive.tools.launch.supervisor import SECOND_INTERRUPT_AFTER_S
 from automotive.tools.support import children
 
 ROOT = Path(__file__).resolve().parent.parent
-# The console script automotive launch, as the running interpreter runs it.
-LAUNCH = [sys.executable, "-m", "automotive.tools.launch.launch"]
+# The console script automotive launch, as the running interpreter runs it (as scripts/launch does: through
+# automotive.start, its import and its signals).
+LAUNCH = children.program_command("launch")
 APPS = ("vision", "lidar", "sensor_fusion", "vehicle_platform", "collision_avoidance", "hmi", "camera_pub",
         "camera_sub")
 # The first line that shows an application doing its work: a sample published or received.

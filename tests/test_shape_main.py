@@ -50,13 +50,14 @@ from automotive.bus.qos import WRITER_REPRESENTATION
 from automotive.cyclone.matched import matched_subscriptions
 from automotive.tools.shapes.shape_main import parse_options
 from automotive.tools.support import netlab
+from automotive.tools.support.children import program_command
 from automotive.types.shape import ShapeType as SuiteShapeType
 from automotive.wire.rawsample import RawWriter
 
 ROOT = Path(__file__).resolve().parent.parent
 # Started as `automotive shape-main` starts it: through automotive.start (its import, its signals), without the
 # dispatcher.
-SHAPE_MAIN = [sys.executable, "-m", "automotive.start", "automotive.tools.shapes.shape_main"]
+SHAPE_MAIN = program_command("shape_main")
 OURS = Implementation("ours", SHAPE_MAIN)
 # Cyclone's application on Cyclone's defaults: no CYCLONEDDS_URI at all (the tests set one for every process).
 CYCLONE_DEFAULTS = Implementation("cyclone-defaults", ["env", "-u", "CYCLONEDDS_URI", sys.executable,

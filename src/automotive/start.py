@@ -49,7 +49,7 @@ def _raise_stopped(signum: int, frame: FrameType | None) -> None:
 
 # Modules of the standard library that a dependency imports as it loads but uses only in functions no program here calls
 # at its start. While that dependency loads, the module is a stand-in (:class:`_StandIn`) that imports the real one on
-# first use; 55-60 ms of CPU less at every program's start here (asyncio pulls in ssl; urllib.request pulls in
+# first use; about 50-60 ms of CPU less at every program's start here (asyncio pulls in ssl; urllib.request pulls in
 # http.client, email and ssl). Each entry is a fact about the dependency's pinned version, checked by
 # tests/test_startup_imports.py: the dependency's import leaves the module unloaded, and its use still works.
 DEFERRED: dict[str, tuple[str, ...]] = {
