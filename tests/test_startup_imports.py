@@ -22,11 +22,16 @@ WITHOUT_NUMPY = ["automotive.apps.hmi", "automotive.apps.vehicle_platform", "aut
 LOADED = "import sys, json; print(json.dumps(sorted(m for m in ('numpy', 'importlib.metadata') if m in sys.modules)))"
 
 
-def loaded_after(code: str) -> list[str]:
-    result = subprocess.run([sys.executable, "-c", f"{code}\n{LOADED}"], capture_output=True, text=True, timeout=60,
+def run_code(code: str) -> str:
+    """What a fresh interpreter running ``code`` prints."""
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
                             env={**os.environ, "AUTOMOTIVE_LOG_LEVEL": "error"})
     assert result.returncode == 0, result.stderr
-    loaded: list[str] = json.loads(result.stdout.splitlines()[-1])
+    return result.stdout
+
+
+def loaded_after(code: str) -> list[str]:
+    loaded: list[str] = json.loads(run_code(f"{code}\n{LOADED}").splitlines()[-1])
     return loaded
 
 
@@ -69,13 +74,6 @@ APPLICATIONS = ["automotive.apps.vision", "automotive.apps.lidar", "automotive.a
                 "automotive.apps.camera_pub", "automotive.apps.camera_sub"]
 # What the deferred modules would bring in with them.
 NOT_LOADED = ("asyncio", "ssl", "urllib.request", "http.client", "email")
-
-
-def run_code(code: str) -> str:
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
-                            env={**os.environ, "AUTOMOTIVE_LOG_LEVEL": "error"})
-    assert result.returncode == 0, result.stderr
-    return result.stdout
 
 
 @pytest.mark.parametrize("module", APPLICATIONS)
