@@ -19,7 +19,7 @@ import pytest
 WITHOUT_NUMPY = ["automotive.apps.hmi", "automotive.apps.vehicle_platform", "automotive.apps.vision",
                  "automotive.apps.collision_avoidance", "automotive.tools.shapes.shape_main",
                  "automotive.tools.launch.launch"]
-LOADED = "import sys, json; print(json.dumps(sorted(m for m in ('numpy', 'importlib.metadata') if m in sys.modules)))"
+LAZY = ("numpy", "importlib.metadata")  # imported where they are used, not at start
 
 
 def run_code(code: str) -> str:
@@ -30,8 +30,10 @@ def run_code(code: str) -> str:
     return result.stdout
 
 
-def loaded_after(code: str) -> list[str]:
-    loaded: list[str] = json.loads(run_code(f"{code}\n{LOADED}").splitlines()[-1])
+def loaded_after(code: str, modules: tuple[str, ...] = LAZY) -> list[str]:
+    """Which of ``modules`` a fresh interpreter has loaded once it ran ``code``."""
+    listing = f"import sys, json; print(json.dumps(sorted(m for m in {modules!r} if m in sys.modules)))"
+    loaded: list[str] = json.loads(run_code(f"{code}\n{listing}").splitlines()[-1])
     return loaded
 
 
@@ -79,9 +81,7 @@ NOT_LOADED = ("asyncio", "ssl", "urllib.request", "http.client", "email")
 @pytest.mark.parametrize("module", APPLICATIONS)
 def test_an_application_started_loads_none_of_the_deferred_modules(module: str) -> None:
     # Fails when a new version of a dependency uses a deferred module as it loads: then take it out of DEFERRED.
-    code = (f"import sys, json\nfrom automotive.start import import_program\nimport_program({module!r})\n"
-            f"print(json.dumps(sorted(m for m in {NOT_LOADED!r} if m in sys.modules)))")
-    assert json.loads(run_code(code).splitlines()[-1]) == []
+    assert loaded_after(f"from automotive.start import import_program\nimport_program({module!r})", NOT_LOADED) == []
 
 
 def test_the_dependencies_use_the_real_modules_through_their_stand_ins(domain_id: int, tmp_path: Path) -> None:
