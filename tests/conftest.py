@@ -55,8 +55,8 @@ def _next_domain_id() -> int:
 # -- the fast tier (scripts/test --fast): tests that start no process -------------------------------------------------
 # Whole modules whose tests start no process and answer quickly (less those marked not_fast); a test elsewhere joins
 # with @pytest.mark.fast.
-FAST_MODULES = {"test_badsamples", "test_codecs", "test_csvdata", "test_layers", "test_pointcloud", "test_properties",
-                "test_qos", "test_rawsample", "test_soak", "test_types", "test_wsrelay"}
+FAST_MODULES = {"test_badsamples", "test_codecs", "test_csvdata", "test_layers", "test_methodcache", "test_pointcloud",
+                "test_properties", "test_qos", "test_rawsample", "test_soak", "test_types", "test_wsrelay"}
 
 
 # -- workers (scripts/test runs pytest-xdist with --dist loadgroup) ----------------------------------------------------

@@ -16,16 +16,18 @@ from pathlib import Path
 
 import pytest
 
+from automotive.methodcache import FILENAME
+
 WITHOUT_NUMPY = ["automotive.apps.hmi", "automotive.apps.vehicle_platform", "automotive.apps.vision",
                  "automotive.apps.collision_avoidance", "automotive.tools.shapes.shape_main",
                  "automotive.tools.launch.launch"]
 LAZY = ("numpy", "importlib.metadata")  # imported where they are used, not at start
 
 
-def run_code(code: str) -> str:
-    """What a fresh interpreter running ``code`` prints."""
+def run_code(code: str, **environment: str) -> str:
+    """What a fresh interpreter running ``code`` (with ``environment`` added to this one's) prints."""
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
-                            env={**os.environ, "AUTOMOTIVE_LOG_LEVEL": "error"})
+                            env={**os.environ, "AUTOMOTIVE_LOG_LEVEL": "error", **environment})
     assert result.returncode == 0, result.stderr
     return result.stdout
 
@@ -116,3 +118,22 @@ assert cyclonedds.core.asyncio.get_event_loop_policy() is asyncio.get_event_loop
 print(text)
 """
     assert run_code(code).splitlines()[-1] == "read through urllib.request"
+
+
+# -- the dataclasses' methods, compiled once (automotive.methodcache) ------------------------------------------------
+
+def test_a_program_started_again_compiles_none_of_its_dataclass_methods(tmp_path: Path) -> None:
+    code = """
+from automotive.start import import_program
+import_program("automotive.apps.sensor_fusion")
+import dataclasses
+assert "exec" not in vars(dataclasses)  # only while the program imported
+"""
+    cache = tmp_path / "automotive" / FILENAME
+    run_code(code, XDG_CACHE_HOME=str(tmp_path))
+    written = cache.stat()
+    assert written.st_size > 100_000  # Cyclone's XTypes and QoS classes, the generated types, the package's own
+    run_code(code, XDG_CACHE_HOME=str(tmp_path))
+    again = cache.stat()
+    # Written only when a process compiled something new: the second start found every method in it.
+    assert (again.st_ino, again.st_mtime_ns) == (written.st_ino, written.st_mtime_ns)
