@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from automotive import methodcache
 from automotive.methodcache import ENVIRONMENT, FILENAME, cache_directory, compiled_once
 
 
@@ -109,3 +110,17 @@ def test_the_cache_directory_follows_the_xdg_specification(monkeypatch: pytest.M
         assert cache_directory() == str(tmp_path / "home" / ".cache" / "automotive")
     monkeypatch.setenv("HOME", "no/home")  # no absolute home: no cache (not a folder named "no" here)
     assert cache_directory() is None
+
+
+def test_a_file_grown_past_its_bound_keeps_what_the_writer_used(tmp_path: Path,
+                                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    stale = {f"def stale_{n}(): pass": compile(f"def stale_{n}(): pass", "<string>", "exec") for n in range(50)}
+    (tmp_path / FILENAME).write_bytes(marshal.dumps((methodcache.BUILD, stale)))
+    monkeypatch.setattr(methodcache, "MAX_METHODS", 40)
+    with compiled_once(str(tmp_path)) as methods:
+        check_behaviour(*make_classes())
+    assert methods is not None and methods.compiled > 0
+    with compiled_once(str(tmp_path)) as methods:
+        check_behaviour(*make_classes())
+    assert methods is not None and methods.compiled == 0 and set(methods.codes) == set(methods.used)
+    assert not set(stale) & set(methods.codes)

@@ -31,6 +31,9 @@ ENVIRONMENT = "AUTOMOTIVE_METHOD_CACHE"  # "off": compile at every start, as Pyt
 FILENAME = f"dataclass-methods.{sys.implementation.cache_tag}.marshal"
 # Written first in the file: code objects and marshal's format belong to one interpreter build.
 BUILD = (sys.version, sys.hexversion, marshal.version)
+# The file keeps every program's methods (about 900 for all the programs here, 0.9 MB) and grows only as class
+# definitions change, by upgrades and edits. Past this many, a process that writes it keeps only what it used.
+MAX_METHODS = 4000
 
 
 def cache_directory() -> str | None:
@@ -49,6 +52,7 @@ class CompiledMethods:
     def __init__(self, path: str) -> None:
         self.path = path
         self.codes: dict[str, CodeType] = self._read()
+        self.used: dict[str, CodeType] = {}  # what this process took or compiled
         self.compiled = 0  # sources not in the file, compiled by this process
 
     def _read(self) -> dict[str, CodeType]:
@@ -67,6 +71,7 @@ class CompiledMethods:
             if code is None:
                 code = self.codes[source] = compile(source, "<string>", "exec")  # as exec(source) compiles it
                 self.compiled += 1
+            self.used[source] = code
             source = code
         builtins.exec(source, globals, locals)
 
@@ -76,12 +81,13 @@ class CompiledMethods:
         that add at once: the last one's file wins, and the other's sources are added at its next start."""
         if not self.compiled:
             return
+        kept = self.codes if len(self.codes) <= MAX_METHODS else self.used
         # A name of this process's own (the pid alone repeats across PID namespaces), created, never opened shared.
         temporary = f"{self.path}.{os.getpid()}-{os.urandom(4).hex()}"
         try:
             os.makedirs(os.path.dirname(self.path), exist_ok=True)
             with open(temporary, "xb") as stream:
-                stream.write(marshal.dumps((BUILD, self.codes)))
+                stream.write(marshal.dumps((BUILD, kept)))
             os.replace(temporary, self.path)
         except OSError:  # a read-only home, a full disk: the next start compiles again
             try:
