@@ -43,7 +43,7 @@ def check_behaviour(reading: type, track: type) -> None:
         track()
 
 
-def test_a_second_process_of_the_same_classes_compiles_nothing(tmp_path: Path) -> None:
+def test_the_next_start_of_the_same_classes_compiles_nothing(tmp_path: Path) -> None:
     with compiled_once(str(tmp_path)) as methods:
         first = make_classes()
     assert methods is not None and methods.compiled > 0
@@ -66,15 +66,20 @@ def test_only_the_block_compiles_through_the_cache(tmp_path: Path) -> None:
     assert not (tmp_path / "inner").exists()
 
 
-@pytest.mark.parametrize("content", [b"", b"not marshal data", marshal.dumps(("another Python", {})),
-                                     marshal.dumps([1, 2, 3]), "truncated"], ids=["empty", "garbage", "another-build",
-                                                                                  "another-shape", "truncated"])
+@pytest.mark.parametrize("content", [
+    b"", b"not marshal data", marshal.dumps(("another Python", {})), marshal.dumps([1, 2, 3]), "truncated",
+    "not code"], ids=["empty", "garbage", "another-build", "another-shape", "truncated", "not-code"])
 def test_a_file_that_cannot_be_used_counts_as_empty_and_is_written_again(tmp_path: Path, content: bytes | str) -> None:
     path = tmp_path / FILENAME
     if content == "truncated":
         with compiled_once(str(tmp_path)):
             make_classes()
         content = path.read_bytes()[:-100]
+    elif content == "not code":  # the right build, every source there, but numbers where the code should be
+        with compiled_once(str(tmp_path)) as written:
+            make_classes()
+        assert written is not None
+        content = marshal.dumps((methodcache.BUILD, dict.fromkeys(written.codes, 5)))
     path.write_bytes(content)  # type: ignore[arg-type]
     with compiled_once(str(tmp_path)) as methods:
         check_behaviour(*make_classes())

@@ -68,7 +68,7 @@ class CompiledMethods:
     def exec(self, source: Any, globals: dict[str, Any] | None = None, locals: Any = None) -> None:
         if isinstance(source, str):
             code = self.codes.get(source)
-            if code is None:
+            if not isinstance(code, CodeType):  # not in the file (or not code there: compiled afresh all the same)
                 code = self.codes[source] = compile(source, "<string>", "exec")  # as exec(source) compiles it
                 self.compiled += 1
             self.used[source] = code
