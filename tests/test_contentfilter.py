@@ -9,7 +9,6 @@ import re
 import signal
 import struct
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,7 @@ from automotive.bus.contentfilter import MAX_DEPTH, ContentFilter, FilteredReade
 from automotive.bus.endpoints import Databus
 from automotive.cyclone.codecs import codec_for
 from automotive.cyclone.matched import matched_subscriptions
+from automotive.tools.support.children import program_command
 from automotive.types.automotive import ShapeType
 from automotive.types.Common import ClassificationEnum, POSIXTimestamp
 from automotive.types.shape import ShapeType as SuiteShapeType
@@ -394,8 +394,8 @@ def test_record_with_a_filter_records_only_what_it_accepts(apps: Any, domain_id:
 
 
 def test_the_shape_command_refuses_a_bad_filter() -> None:
-    result = subprocess.run([sys.executable, "-m", "automotive.tools.shapes.shape_main", "-S", "-t", "Square",
-                             "-d", "5", "--cft", "shapesize <= twenty"], capture_output=True, text=True, cwd=ROOT,
+    result = subprocess.run(program_command("shape_main", "-S", "-t", "Square", "-d", "5", "--cft",
+                                            "shapesize <= twenty"), capture_output=True, text=True, cwd=ROOT,
                             timeout=60)
     assert_one_line_error(result, r"^automotive shape-main: --cft 'shapesize <= twenty': position 14: ShapeType has "
                                   r"no member 'twenty'")

@@ -19,6 +19,7 @@ from display_helpers import free_x_display, run_without_display
 
 from automotive import config
 from automotive.cyclone.matched import matched_subscriptions
+from automotive.tools.support.children import program_command
 from automotive.types.Alerts import DriverAlerts
 
 CLEAR = dict(blindSpotDriver=False, blindSpotPassenger=False, frontCollision=False, backCollision=False,
@@ -254,8 +255,8 @@ def test_auto_with_an_unreachable_display_takes_the_console(apps, domain_id: int
 def test_on_a_terminal_the_console_alert_is_a_box(domain_id: int) -> None:
     """Into a pipe the alert is one line (the launcher's console, a log); on a terminal it is a box."""
     controller, terminal = pty.openpty()
-    process = subprocess.Popen([sys.executable, "-m", "automotive.apps.hmi", "--ui", "console", "--domain",
-                                str(domain_id)], stdin=subprocess.DEVNULL, stdout=terminal, stderr=subprocess.PIPE)
+    process = subprocess.Popen(program_command("hmi", "--ui", "console", "--domain", str(domain_id)),
+                               stdin=subprocess.DEVNULL, stdout=terminal, stderr=subprocess.PIPE)
     os.close(terminal)
     seen = b""
     try:

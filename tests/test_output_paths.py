@@ -64,7 +64,7 @@ FOLDERS = [
     Case(bench("scale"), "--log-dir", "logs", ("--sizes", "x")),
     Case(bench("zenoh_bridge"), "--log-dir", "logs", ("--seconds", "0")),
     Case(bench("soak"), "--memtrace", "memtrace"),
-    Case((sys.executable, "-m", "automotive.tools.launch.launch", "--mode", "background"), "--log-dir", "logs",
+    Case(tuple(program_command("launch", "--mode", "background")), "--log-dir", "logs",
          ("no_such_app",)),
 ]
 
