@@ -275,11 +275,13 @@ def test_the_launched_system_shows_its_six_flows_moving_its_health_and_the_vehic
         return set(SIX_FLOWS) <= seen
 
     until(browser, six_flows_moving, PAGE_S - (time.monotonic() - opened), "the six flows moving", shot)
-    state = until(browser, lambda page: (lambda s: s if set(PROGRAMS) <= set(s["programs"])
-                                         and s["status"] == "live" else None)(page_state(page)),
-                  PAGE_S - (time.monotonic() - opened), "every program's health", shot)
+    # Waited for, not asserted once: a report older than 5 s shows STALE, which is right on a machine that held
+    # every program back that long (seen once in a loaded suite: all eight STALE at one moment, the monitor too).
+    state = until(browser, lambda page: (lambda s: s if s["status"] == "live" and set(PROGRAMS) <= set(s["programs"])
+                                         and all(s["programs"][name] in ("OK", "WARN") for name in PROGRAMS)
+                                         else None)(page_state(page)),
+                  PAGE_S - (time.monotonic() - opened), "every program's health OK or WARN", shot)
     assert time.monotonic() - opened <= PAGE_S
-    assert all(state["programs"][name] in ("OK", "WARN") for name in PROGRAMS), state["programs"]
     pairs = {tuple(row) for row in state["matches"]}
     assert {("VisionTopic", "vision", "sensor_fusion"), ("rt/LidarTopic", "lidar", "sensor_fusion"),
             ("SensorObjects", "sensor_fusion", "collision_avoidance"), ("AlertTopic", "collision_avoidance", "hmi"),

@@ -211,15 +211,17 @@ class DomainView:
             self.probes.close()
 
     def poll(self) -> None:
-        """Take the /diagnostics reports and the probes' samples that arrived; call it at least every second."""
+        """Take the probes' samples and the /diagnostics reports that arrived; call it at least every second. The
+        reports last: a report's age is counted from its take, and what the probes do first (make readers, take the
+        samples) must not count as the reports' age (with everything STALE after a slow step)."""
         with self.lock:
-            self._poll()
             if self.probes is not None:
                 now = time.monotonic()
                 if now - self._followed >= FOLLOW_S:  # the writers of the flows it reads: which readers to have
                     self._followed = now
                     self.probes.follow(self._current("writer"))
                 self.probes.poll()
+            self._poll()
 
     def _poll(self) -> None:
         now = time.monotonic()
@@ -289,8 +291,8 @@ class DomainView:
 
     def lidar_png(self) -> bytes | None:
         """The newest LiDAR cloud as a PNG (it changes at most every 2 s: ``vehicle.lidar_image_at``); None
-        before the first cloud. For a page's ``/lidar.png``."""
+        before the first cloud. For a page's ``/lidar.png``. Drawn without the view's lock: a snapshot does not wait
+        for a picture (the probes keep their own)."""
         if self.probes is None:
             return None
-        with self.lock:
-            return self.probes.lidar_png()
+        return self.probes.lidar_png()

@@ -217,6 +217,9 @@ class Probes:
         self.shared: dict[str, SharedProbe | None] = {}  # topic -> its shared-memory subscriber (None: cannot be)
         self.log = log or logging.getLogger("automotive")
         self.lock = threading.RLock()
+        # The LiDAR picture's own: drawing it takes up to seconds (the first time the renderer's import too), and the
+        # samples, the snapshot's poll and the shared-memory thread must not wait for it under self.lock.
+        self._drawing = threading.Lock()
         self.problems: list[str] = []
         self.probes: list[Probe] = []
         self.counters: dict[str, Counter] = {}
@@ -443,14 +446,16 @@ class Probes:
 
     def lidar_png(self) -> bytes | None:
         """The newest LiDAR cloud kept (at most one every LIDAR_EVERY_S) as a PNG by the LiDAR view's renderer; drawn
-        once per cloud, when asked; None before the first cloud (or when it cannot be drawn)."""
-        with self.lock:
-            decoded = self._decoded(PointCloud2_)
-            if decoded is None:
-                return None
-            cloud, latest = decoded
-            if self._lidar_png is not None and self._lidar_png[0] == latest.sequence:
-                return self._lidar_png[1]
+        once per cloud, when asked, outside self.lock; None before the first cloud (or when it cannot be drawn)."""
+        with self._drawing:
+            with self.lock:
+                decoded = self._decoded(PointCloud2_)
+                if decoded is None:
+                    return None
+                cloud, latest = decoded
+                sequence, topic = latest.sequence, self.lidar_topic
+                if self._lidar_png is not None and self._lidar_png[0] == sequence:
+                    return self._lidar_png[1]
             import io
 
             from automotive.tools.cloudview import CloudFigure
@@ -459,12 +464,13 @@ class Probes:
             try:
                 xyz, rgb = decode_point_cloud2(cloud)
             except ValueError as error:
-                problem = f"cannot draw a cloud of {self.lidar_topic}: {error}"
-                if problem not in self.problems:
-                    self.problems.append(problem)
+                with self.lock:
+                    problem = f"cannot draw a cloud of {topic}: {error}"
+                    if problem not in self.problems:
+                        self.problems.append(problem)
                 return None
             if self._figure is None:
-                self._figure = CloudFigure(LIDAR_SIZE, 1, f"LiDAR point cloud: {self.lidar_topic}")
+                self._figure = CloudFigure(LIDAR_SIZE, 1, f"LiDAR point cloud: {topic}")
             stamp = cloud.header_.stamp_
             image = self._figure.render(xyz, rgb, f"{len(xyz):>6d} points  stamp {stamp.sec_}.{stamp.nanosec_:09d}  "
                                                   f"frame '{str(cloud.header_.frame_id_)[:32]}'")
@@ -472,7 +478,7 @@ class Probes:
 
             buffer = io.BytesIO()
             Image.fromarray(image).save(buffer, format="PNG", compress_level=1)
-            self._lidar_png = (latest.sequence, buffer.getvalue())
+            self._lidar_png = (sequence, buffer.getvalue())
             return self._lidar_png[1]
 
 
