@@ -745,15 +745,19 @@ def test_a_snapshot_does_not_wait_for_the_lidar_picture_and_programs_stay_fresh_
     try:
         assert drawing.wait(TIMEOUT), "the picture was not drawn"
         held_since = time.monotonic()
-        while time.monotonic() - held_since < STALE_AFTER_S + 1.5:
+        programs: dict[str, str] = {}
+        # Past STALE_AFTER_S of drawing, and then until every application shows OK or WARN (bounded: on a loaded
+        # machine a report can be late of its own), each snapshot made while the drawing is still held.
+        while time.monotonic() - held_since < STALE_AFTER_S + 1.5 or not all(
+                programs.get(name) in ("OK", "WARN") for name in APPLICATIONS):
+            assert time.monotonic() - held_since < STALE_AFTER_S + 20, f"while the picture was drawn: {programs}"
             made: list[Any] = []
             snapshot = threading.Thread(target=take_snapshot, args=(made,))
             snapshot.start()
             snapshot.join(5.0)
             assert made, "a snapshot waited for the LiDAR picture"
+            programs = {program["name"]: program["level"] for program in json.loads(made[0].to_json())["programs"]}
             time.sleep(0.5)
-        programs = {program["name"]: program["level"] for program in json.loads(made[0].to_json())["programs"]}
-        assert all(programs[name] in ("OK", "WARN") for name in APPLICATIONS), programs
     finally:
         release.set()
         drawer.join(60)
