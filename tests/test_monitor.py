@@ -47,6 +47,7 @@ from automotive.bus.endpoints import Databus
 from automotive.bus.network import NetworkConfig
 from automotive.bus.qos import QosProfiles
 from automotive.tools.monitor.model import (
+    MAX_PROBLEMS,
     STALE_AFTER_S,
     EndpointRecord,
     MeasuredFlow,
@@ -55,6 +56,7 @@ from automotive.tools.monitor.model import (
     Vehicle,
     analyse,
     flows,
+    say_once,
 )
 from automotive.tools.monitor.probes import Counter, camera_program, wanted_readers
 from automotive.tools.monitor.rules import (
@@ -100,6 +102,17 @@ def test_the_specification_defaults_match_and_every_rule_has_words() -> None:
     assert mismatch_reasons(EndpointQos(), reader_defaults()) == []
     assert len(RULES) == 12 and all(rule.summary and rule.policy for rule in RULES)
     assert len({rule.policy for rule in RULES}) == len(RULES)
+
+
+@pytest.mark.fast
+def test_a_problem_is_said_once_and_the_list_of_problems_is_bounded() -> None:
+    problems: list[str] = []
+    say_once(problems, "cannot take Circle: an error")
+    say_once(problems, "cannot take Circle: an error")
+    assert problems == ["cannot take Circle: an error"]
+    for number in range(2 * MAX_PROBLEMS):  # a bus failing with a new error text each time
+        say_once(problems, f"cannot take Circle: error {number}")
+    assert len(problems) == MAX_PROBLEMS and problems[0] == "cannot take Circle: an error"
 
 
 # (policy, writer's offer, reader's request, the words expected)

@@ -44,13 +44,13 @@ from automotive.tools.monitor.model import (
     ProgramReport,
     Snapshot,
     analyse,
+    say_once,
 )
 from automotive.tools.monitor.probes import Probes
 from automotive.tools.monitor.rules import INFINITE_NS, XCDR1, XCDR2, EndpointQos
 from automotive.types.diagnostic_msgs.msg.dds_ import DiagnosticArray_
 
 CHUNK = 256  # samples per read or take of a built-in topic
-MAX_PROBLEMS = 100  # problems said (each once)
 MAX_REPORTS = 1000  # programs remembered (a name that comes and goes under new names cannot grow it past this)
 FORGET_AFTER_S = 300.0  # a program silent this long is forgotten
 MAX_VALUES = 500  # key/values kept per report
@@ -202,8 +202,7 @@ class DomainView:
             return None
 
     def _problem(self, problem: str) -> None:
-        if problem not in self.problems and len(self.problems) < MAX_PROBLEMS:
-            self.problems.append(problem)
+        say_once(self.problems, problem)
 
     def close(self) -> None:
         """Stop what runs beside the participant (the probes' shared-memory subscribers)."""
@@ -284,8 +283,7 @@ class DomainView:
             vehicle = self.probes.vehicle(reports) if self.probes is not None else None
             if self.probes is not None:
                 for problem in self.probes.problems:
-                    if problem not in self.problems:
-                        self.problems.append(problem)
+                    say_once(self.problems, problem)
             return analyse(self.bus.domain_id, participants, endpoints, reports, moved_ago, measured=measured,
                            vehicle=vehicle)
 

@@ -37,6 +37,13 @@ from automotive.tools.monitor.rules import (
 UNKNOWN = "unknown"
 LEVELS = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 STALE_AFTER_S = 5.0  # a program whose last report is older than this is STALE (it reports every second)
+MAX_PROBLEMS = 100  # problems the monitor says (each once): a bus that keeps failing must not grow the list
+
+
+def say_once(problems: list[str], problem: str) -> None:
+    """Add ``problem`` to ``problems`` unless it is there already or the list holds MAX_PROBLEMS."""
+    if problem not in problems and len(problems) < MAX_PROBLEMS:
+        problems.append(problem)
 
 # RTPS vendor ids (the OMG's list), found in the first two bytes of a GUID prefix, as the RTPS specification
 # recommends and Cyclone DDS, RTI Connext 6 and Fast DDS do.

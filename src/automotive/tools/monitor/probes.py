@@ -57,6 +57,7 @@ from automotive.tools.monitor.model import (
     ProgramReport,
     Vehicle,
     _number,
+    say_once,
 )
 from automotive.types.Alerts import DriverAlerts
 from automotive.types.Platform import PlatformControl, PlatformStatus
@@ -268,8 +269,7 @@ class Probes:
                                                  qos=qos)
         except Exception as error:  # noqa: BLE001  (a reader Cyclone refuses: said, the others still read)
             problem = f"cannot read {flow.topic}: {error}"
-            if problem not in self.problems:
-                self.problems.append(problem)
+            say_once(self.problems, problem)
             return
         keep = flow.data_type in SHOWN or flow.data_type is PointCloud2_
         local = shm.LocalWriters(reader, shared.memory.key) if shared is not None else None
@@ -348,8 +348,7 @@ class Probes:
                             break
                 except (DDSException, RuntimeError, ValueError) as error:
                     problem = f"cannot take {topic}: {error}"
-                    if problem not in self.problems:
-                        self.problems.append(problem)
+                    say_once(self.problems, problem)
             for counter in self.counters.values():
                 counter.checkpoint(now)
 
@@ -389,8 +388,7 @@ class Probes:
             except Exception as error:  # noqa: BLE001  (whatever a decoder raises for bytes it cannot decode)
                 latest.decoded = None
                 problem = f"a sample of {topic} does not decode: {error}"
-                if problem not in self.problems:
-                    self.problems.append(problem)
+                say_once(self.problems, problem)
         return (latest.decoded, latest) if latest.decoded is not None else None
 
     @property
@@ -466,8 +464,7 @@ class Probes:
             except ValueError as error:
                 with self.lock:
                     problem = f"cannot draw a cloud of {topic}: {error}"
-                    if problem not in self.problems:
-                        self.problems.append(problem)
+                    say_once(self.problems, problem)
                 return None
             if self._figure is None:
                 self._figure = CloudFigure(LIDAR_SIZE, 1, f"LiDAR point cloud: {topic}")
