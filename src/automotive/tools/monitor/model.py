@@ -45,6 +45,7 @@ def say_once(problems: list[str], problem: str) -> None:
     if problem not in problems and len(problems) < MAX_PROBLEMS:
         problems.append(problem)
 
+
 # RTPS vendor ids (the OMG's list), found in the first two bytes of a GUID prefix, as the RTPS specification
 # recommends and Cyclone DDS, RTI Connext 6 and Fast DDS do.
 VENDORS = {
