@@ -17,7 +17,14 @@ from automotive.tools.cloudview import CloudFigure, render_png
 from automotive.types.builtin_interfaces.msg.dds_ import Time_
 from automotive.types.sensor_msgs.msg.dds_ import PointCloud2_, PointField_
 from automotive.types.std_msgs.msg.dds_ import Header_
-from automotive.wire.pointcloud import FLOAT32, POINT_DTYPE, decode_point_cloud2, pack_rgb, to_point_cloud2
+from automotive.wire.pointcloud import (
+    FLOAT32,
+    POINT_DTYPE,
+    CloudBuffer,
+    decode_point_cloud2,
+    pack_rgb,
+    to_point_cloud2,
+)
 
 DEFAULT_OBSERVER = np.array([0.0, 0.0, 1.0])
 
@@ -320,3 +327,31 @@ def test_wire_bound_check() -> None:
     ScanGrid(azimuth_steps=360).check_wire_bound()  # 23,040 points: exactly the 368,640-byte bound
     with pytest.raises(ConfigError, match=r"config.azimSteps.*368640 bytes"):
         ScanGrid(azimuth_steps=361).check_wire_bound()
+
+
+@pytest.mark.parametrize("xcdr2", [False, True])
+@pytest.mark.parametrize("frame_id", ["map", "lidar_front_left"])
+def test_a_scan_rendered_into_a_cloud_buffer_is_the_serialized_cloud_byte_for_byte(xcdr2: bool, frame_id: str) -> None:
+    grid = ScanGrid(azimuth_steps=90, polar_steps=16)
+    by_message, in_place = LidarScene(grid, seed=5), LidarScene(grid, seed=5)
+    for scene in (by_message, in_place):
+        scene.update_shape("RED", 120, 135, 60)
+    blank = to_point_cloud2(np.zeros((grid.height, grid.width), POINT_DTYPE), 0, 0, frame_id)
+    cloud = CloudBuffer(blank.serialize(use_version_2=xcdr2))
+    for number in range(3):  # the noise differs scan by scan: each one's bytes
+        cloud.stamp(1_700_000_000 + number, 999_999_999 - number)
+        in_place.render(out=cloud.points)
+        expected = by_message.point_cloud2(1_700_000_000 + number, 999_999_999 - number, frame_id)
+        assert bytes(cloud.data) == expected.serialize(use_version_2=xcdr2)
+
+
+def test_a_cloud_buffer_wants_the_layout_it_renders_and_render_the_size_of_the_grid() -> None:
+    grid = ScanGrid(azimuth_steps=8, polar_steps=4)
+    other = PointCloud2_(header_=Header_(stamp_=Time_(sec_=0, nanosec_=0), frame_id_="map"), height_=1, width_=2,
+                         fields_=[PointField_(name_="x", offset_=0, datatype_=FLOAT32, count_=1)],
+                         is_bigendian_=False, point_step_=4, row_step_=8, data_=bytes(8), is_dense_=True)
+    with pytest.raises(ValueError, match="16-byte points"):
+        CloudBuffer(other.serialize())
+    wrong = CloudBuffer(to_point_cloud2(np.zeros((2, 8), POINT_DTYPE), 0, 0).serialize())
+    with pytest.raises(ValueError, match=r"shape \(32, 4\)"):
+        LidarScene(grid).render(out=wrong.points)

@@ -314,14 +314,20 @@ class LidarScene:
         start = int(self._rng.integers(0, len(self._noise_pool) - count + 1))
         return self._noise_pool[start:start + count]
 
-    def render(self) -> npt.NDArray[Any]:
-        """One scan: a structured array (``POINT_DTYPE``) of shape (height, width), a fresh array every call."""
+    def render(self, out: npt.NDArray[np.float32] | None = None) -> npt.NDArray[Any]:
+        """One scan: a structured array (``POINT_DTYPE``) of shape (height, width), a fresh array every call, or
+        the points written into ``out`` (float32, shape (point_count, 4), any memory: a serialized cloud's data,
+        :class:`automotive.wire.pointcloud.CloudBuffer`) and that memory returned as such an array."""
         distance, rgb, ground = self._geometry()
         grid = self.grid
         noise = self._noise()
         if noise is not None:
             distance = distance + noise
-        out = np.empty((grid.point_count, 4), dtype=np.float32)
+        if out is None:
+            out = np.empty((grid.point_count, 4), dtype=np.float32)
+        elif out.shape != (grid.point_count, 4) or out.dtype != np.float32:
+            raise ValueError(f"render: expected a float32 array of shape ({grid.point_count}, 4), got {out.dtype} "
+                             f"{out.shape}")
         for axis, origin in enumerate(self.observer):
             column = out[:, axis]
             np.multiply(grid.components[axis], distance, out=column)

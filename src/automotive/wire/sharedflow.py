@@ -169,7 +169,15 @@ class FlowWriter(_SharedEnd):
             self._unregister()
             console.traffic.count_out(self.topic)
             return time.time_ns()
-        data = serdata.serialize(self.writer, sample)
+        return self.publish_serialized(self.serialize(sample))
+
+    def serialize(self, sample: Any) -> bytes:
+        """``sample`` serialized as this flow sends it (its writer's data representation)."""
+        return serdata.serialize(self.writer, sample)
+
+    def publish_serialized(self, data: bytes | bytearray | memoryview) -> int:
+        """Publish a serialized sample (as :func:`automotive.cyclone.serdata.serialize` makes it), the same bytes in
+        shared memory and on DDS; return its source timestamp (ns). The caller may reuse ``data`` afterwards."""
 
         # Stamped as DDS stamps a write, once the sample is serialized: here once it is in the loaned memory too.
         def fill(view: memoryview) -> int:
@@ -183,8 +191,8 @@ class FlowWriter(_SharedEnd):
 
         written = self.sent_dds
         stamp = self.publish(len(data), fill, write_dds)
-        if self.sent_dds > written:
-            self._registered = data
+        if self.sent_dds > written and self._registered is None:  # any sample of the instance unregisters it
+            self._registered = bytes(data)
         return stamp
 
 
