@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -29,6 +31,31 @@ def test_a_follower_reads_each_record_once_as_it_is_appended(tmp_path: Path) -> 
     assert follower.records("matched") == []
     assert [record["kind"] for record in follower.records()] == ["ready", "sample", "sample"]
     assert list(stats.read(path, "sample")) == follower.records("sample")
+
+
+@pytest.mark.fast
+def test_records_of_a_wake_up_wait_until_its_outputs_are_written_and_keep_their_time(tmp_path: Path) -> None:
+    path = tmp_path / "app.jsonl"
+    follower = stats.Follower(path)
+    writer = stats.Stats(path, "app")
+    others: list[None] = []
+    with writer.deferred() as write_records:
+        writer.record("take", n=1)
+        made = time.time()
+        assert follower.records() == []  # held back until the wake-up's outputs are written
+        # another thread's record (a listener's) is written at once
+        thread = threading.Thread(target=lambda: others.append(writer.record("matched")))
+        thread.start()
+        thread.join()
+        assert [record["kind"] for record in follower.records()] == ["matched"]
+        write_records()
+        assert [record["kind"] for record in follower.records()] == ["matched", "take"]
+        assert follower.records("take")[0]["t"] <= made  # the time it was made, not written
+        writer.record("take", n=2)  # left at the end: written then
+    writer.record("sample")  # outside: written at once
+    assert [record.get("n") for record in follower.records("take")] == [1, 2]
+    assert follower.records()[-1]["kind"] == "sample"
+    writer.close()
 
 
 def test_a_line_still_being_written_waits_and_what_is_not_a_record_is_passed_over(tmp_path: Path) -> None:

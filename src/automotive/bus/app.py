@@ -406,9 +406,10 @@ class Application:
         The application calls :meth:`tick` for each unit of its work, which ends the loop after ``--count`` of them.
         """
         self.ready()
-        with deferred_bookkeeping() as book_takes:
+        with deferred_bookkeeping() as book_takes, self.stats.deferred() as write_records:
             while self.running:
                 book_takes()  # the counts and latencies of the last wake-up's takes, after its outputs
+                write_records()  # and its --stats records
                 wait_s = timeout_s() if callable(timeout_s) else timeout_s
                 waitset.wait(max(int(wait_s * 1e9), 0))
                 if self.running:

@@ -15,7 +15,8 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import IO, Any
 
@@ -49,6 +50,8 @@ class Stats:
         self.program = program
         self._lock = threading.Lock()
         self._stream: IO[str] | None = None
+        # The threads whose records wait (deferred), each with its records: (time made, kind, fields).
+        self._deferred: dict[int, list[tuple[float, str, dict[str, Any]]]] = {}
         if path is not None:
             problem = output_file_problem(path)
             if problem:
@@ -65,7 +68,35 @@ class Stats:
     def record(self, kind: str, **fields: Any) -> None:
         if self._stream is None:
             return
-        line = json.dumps({"t": round(time.time(), 6), "program": self.program, "kind": kind, **fields},
+        waiting = self._deferred.get(threading.get_ident())
+        if waiting is not None:
+            waiting.append((time.time(), kind, fields))
+            return
+        self._write(time.time(), kind, fields)
+
+    @contextmanager
+    def deferred(self) -> Iterator[Callable[[], None]]:
+        """Within, this thread's records wait for the function it gives, which the caller calls once it has written
+        its outputs (an application's wake-up loop: a record, JSON and a write, would delay the outputs that the
+        alert chain waits for); each keeps the time it was made. At the end, what is left is written. Other threads'
+        records are written at once."""
+        thread = threading.get_ident()
+        self._deferred[thread] = []
+        try:
+            yield lambda: self._write_deferred(thread)
+        finally:
+            self._write_deferred(thread)
+            del self._deferred[thread]
+
+    def _write_deferred(self, thread: int) -> None:
+        waiting = self._deferred[thread]
+        if waiting:
+            self._deferred[thread] = []
+            for made, kind, fields in waiting:
+                self._write(made, kind, fields)
+
+    def _write(self, made: float, kind: str, fields: dict[str, Any]) -> None:
+        line = json.dumps({"t": round(made, 6), "program": self.program, "kind": kind, **fields},
                           separators=(",", ":"))
         with self._lock:
             if self._stream is not None:
