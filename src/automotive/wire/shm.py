@@ -371,9 +371,10 @@ class DeadlineWatch:
             self.total += missed
             self.report(SimpleNamespace(total_count=self.total, total_count_change=missed))
 
-    @property
-    def watching(self) -> bool:
-        return bool(self._due)
+    def overdue(self, now: float | None = None) -> bool:
+        """Whether :meth:`check` would report a miss now."""
+        now = time.monotonic() if now is None else now
+        return self.period_s is not None and any(now >= due for due in self._due.values())
 
     def forget(self) -> None:
         """Every writer left: no instance is expected any more (DDS stops watching an instance without writers)."""
