@@ -5,6 +5,7 @@ quietly."""
 from __future__ import annotations
 
 import io
+import logging
 import os
 import re
 import subprocess
@@ -16,7 +17,7 @@ import pytest
 from apprunner import AppRunner
 
 from automotive.apps.hmi import AlertView, ConsoleUI, Shown
-from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE
+from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE, LevelFormatter
 from automotive.tools.launch.display import Console
 from automotive.tools.support.children import program_command
 
@@ -39,6 +40,26 @@ def quiet_env() -> dict[str, str]:
     """As in a user's shell: no log level chosen (the tests' own default is every line); the runner adds the rest of
     the environment."""
     return {LOG_LEVEL_VARIABLE: ""}
+
+
+@pytest.mark.fast
+def test_a_log_line_reads_as_logging_would_format_it() -> None:
+    """The formatter puts a line together itself (its clock made once a second); the line is logging's own."""
+    ours = LevelFormatter()
+    logging_own = logging.Formatter("%(asctime)s.%(msecs)03d %(name)s%(level_tag)s: %(message)s", "%H:%M:%S")
+    created = time.time()
+    for level in (logging.DEBUG, logging.INFO, logging.WARNING, logging.ERROR, 5):
+        for delay_s in (0.0, 0.0004, 1.0, 61.5):  # the same second, the next ones
+            record = logging.LogRecord("vision", level, "", 0, "sample %d of %s 100%%", (3, "x"), None)
+            record.created = created + delay_s
+            record.msecs = int((record.created - int(record.created)) * 1000) + 0.0
+            assert ours.format(record) == logging_own.format(record)
+    try:
+        raise ZeroDivisionError("boom")
+    except ZeroDivisionError:
+        record = logging.LogRecord("vision", logging.ERROR, "", 0, "failed", (), sys.exc_info())
+    line = ours.format(record)
+    assert line == logging_own.format(record) and line.endswith("ZeroDivisionError: boom")
 
 
 def test_an_application_alone_shows_status_lines_not_samples(apps: AppRunner, domain_id: int) -> None:

@@ -20,6 +20,7 @@ import os
 import re
 import sys
 import threading
+import time
 from collections.abc import Callable
 from typing import TextIO
 
@@ -38,12 +39,25 @@ DEBUG_RECORD = re.compile(DEBUG_LINE_PATTERN.removeprefix("^"))
 
 
 class LevelFormatter(logging.Formatter):
+    """``HH:MM:SS.mmm name level: message``. A line without a traceback is put together here, its clock made once a
+    second: logging.Formatter's general path (a strftime and a %-format of the record's dictionary for every line)
+    cost half of a DEBUG line per sample, 40 of 100 us on a cold cache."""
+
     def __init__(self) -> None:
         super().__init__("%(asctime)s.%(msecs)03d %(name)s%(level_tag)s: %(message)s", TIME_FORMAT)
+        self._clock = (-1, "")  # (a whole second since the epoch, its HH:MM:SS)
 
     def format(self, record: logging.LogRecord) -> str:
-        record.level_tag = LEVEL_TAGS.get(record.levelno, f" {record.levelname}")
-        return super().format(record)
+        tag = record.level_tag = LEVEL_TAGS.get(record.levelno, f" {record.levelname}")
+        if record.exc_info or record.exc_text or record.stack_info:
+            return super().format(record)
+        second = int(record.created)
+        clock = self._clock
+        if clock[0] != second:  # one tuple: another thread sees the old pair or the new one, never a mix
+            clock = (second, time.strftime(TIME_FORMAT, self.converter(record.created)))
+            self._clock = clock
+        record.message = record.getMessage()
+        return f"{clock[1]}.{int(record.msecs):03d} {record.name}{tag}: {record.message}"
 
 
 class ClosedPipeHandler(logging.StreamHandler):  # type: ignore[type-arg]
