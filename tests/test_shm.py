@@ -42,7 +42,7 @@ from automotive.sim import lfsr
 from automotive.tools.support.children import program_command
 from automotive.types.CameraImage import CameraImageData_64KiB
 from automotive.wire.camera import FrameWriter, shared_frames
-from automotive.wire.shm import SharedFirstWaitSet, SharedMemory, SharedReader, SharedWriter
+from automotive.wire.shm import DeadlineWatch, SharedFirstWaitSet, SharedMemory, SharedReader, SharedWriter
 
 ROOT = Path(__file__).resolve().parent.parent
 PROPERTIES = ROOT / "src" / "automotive" / "config" / "properties"
@@ -71,6 +71,21 @@ def viewer_on_shm(depth: int = 8) -> str:
 
 
 # -- the camera pair -----------------------------------------------------------------------------------------------
+
+@pytest.mark.fast
+def test_a_shared_memory_deadline_is_overdue_once_its_period_passed_without_a_sample() -> None:
+    """What a flow reader asks at each wake-up before it asks Cyclone for its writers (FlowReader.check_deadline)."""
+    reported: list[object] = []
+    watch = DeadlineWatch(0.5, reported.append)
+    assert not watch.overdue(now=0.0)  # no instance yet
+    watch.sample("cloud", now=10.0)
+    assert not watch.overdue(now=10.4) and watch.overdue(now=10.5)
+    watch.check(now=10.5)
+    assert len(reported) == 1 and not watch.overdue(now=10.6)  # reported once a period
+    watch.forget()
+    assert not watch.overdue(now=99.0)
+    assert not DeadlineWatch(None, reported.append).overdue()  # no deadline asked
+
 
 def test_camera_pair_over_shared_memory_verifies_every_frame_at_full_speed(apps, domain_id: int,  # type: ignore[no-untyped-def]
                                                                             prefix: str) -> None:
