@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+import psutil
 import pytest
 from cyclonedds._clayer import ddspy_take
 from cyclonedds.core import InstanceState, SampleState, ViewState
@@ -32,7 +33,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 from test_bridge import start_bridge
 
-from automotive.bus.diagnostics import ERROR, OK, WARN, EndpointState, Problem, assess
+from automotive.bus.diagnostics import ERROR, OK, WARN, EndpointState, Problem, ProcessUsage, assess
 from automotive.bus.endpoints import Databus
 from automotive.cyclone.matched import matched_publications, matched_subscriptions
 from automotive.types.Alerts import DriverAlerts
@@ -305,3 +306,17 @@ def test_two_command_writers_of_one_vehicle_are_warned_on_the_console_and_in_dia
     diagnostics.status_of("vehicle_platform", lambda status: "command writers" not in status.message,
                           what="without the warning")
     assert matched_subscriptions(first)
+
+
+@pytest.mark.fast
+def test_the_report_reads_the_process_memory_and_cpu_as_psutil_does() -> None:
+    usage = ProcessUsage()
+    process = psutil.Process()
+    ballast = bytearray(64 << 20)  # 64 MB made resident: both readings see it
+    ballast[::4096] = b"x" * len(ballast[::4096])
+    assert abs(usage.rss_bytes() - process.memory_info().rss) < 4 << 20
+    spent = time.process_time() + 0.3
+    while time.process_time() < spent:  # a busy 0.3 s of this thread
+        pass
+    assert usage.cpu_percent() > 30  # percent of one core since it was made
+    del ballast
