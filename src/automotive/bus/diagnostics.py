@@ -41,12 +41,11 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-import psutil
 from cyclonedds.core import DDSException
 from cyclonedds.pub import DataWriter
 from cyclonedds.sub import DataReader
 
-from automotive.bus import console, latency
+from automotive.bus import console, latency, memtune
 from automotive.bus.badsamples import BadSampleReporter
 from automotive.bus.endpoints import Databus
 from automotive.bus.qos import ROS2_DEFAULT_PROFILE, QosProfiles
@@ -156,7 +155,6 @@ class ProcessUsage:
     report cost, once a second in every program (docs/measurements/shared-memory-default.md)."""
 
     def __init__(self) -> None:
-        self._page_bytes = os.sysconf("SC_PAGE_SIZE")
         self._last = self._times()
 
     @staticmethod
@@ -165,15 +163,9 @@ class ProcessUsage:
         usage = resource.getrusage(resource.RUSAGE_SELF)
         return time.monotonic(), usage.ru_utime + usage.ru_stime
 
-    def rss_bytes(self) -> int:
-        try:
-            fd = os.open("/proc/self/statm", os.O_RDONLY | os.O_CLOEXEC)
-            try:
-                return int(os.read(fd, 256).split()[1]) * self._page_bytes  # size, resident, ... in pages
-            finally:
-                os.close(fd)
-        except (OSError, ValueError, IndexError):  # no procfs: psutil knows the other ways
-            return int(psutil.Process().memory_info().rss)
+    @staticmethod
+    def rss_bytes() -> int:
+        return memtune.resident_bytes()
 
     def cpu_percent(self) -> float:
         """Percent of one core since the last call (the first: since this object was made)."""

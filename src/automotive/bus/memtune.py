@@ -99,17 +99,28 @@ def give_back_free_memory(keep_top_bytes: int | None = None) -> bool | None:
     return bool(malloc_trim(_trim_threshold_bytes if keep_top_bytes is None else keep_top_bytes))
 
 
+def resident_bytes() -> int:
+    """The whole process's resident memory, from one read of /proc/self/statm; 0 where /proc does not tell."""
+    try:
+        fd = os.open("/proc/self/statm", os.O_RDONLY | os.O_CLOEXEC)
+        try:
+            return int(os.read(fd, 256).split()[1]) * os.sysconf("SC_PAGE_SIZE")  # size, resident, ... in pages
+        finally:
+            os.close(fd)
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
 def resident_kB() -> tuple[int, int]:
     """(the main heap's, the whole process's) resident kB; (0, 0) where /proc does not tell.
 
     The main heap's from its entry in /proc/self/smaps, read only as far as that entry (it comes right after the
     executable's mappings: a few dozen lines, not the thousands of the whole file); the process's from
-    /proc/self/statm.
+    /proc/self/statm (:func:`resident_bytes`).
     """
-    heap_kB = process_kB = 0
+    heap_kB = 0
+    process_kB = resident_bytes() // 1024
     try:
-        with open("/proc/self/statm", encoding="ascii") as statm:
-            process_kB = int(statm.read().split()[1]) * (os.sysconf("SC_PAGE_SIZE") // 1024)
         with open("/proc/self/smaps", encoding="utf-8", errors="replace") as smaps:
             in_heap = False
             for line in smaps:
