@@ -5,6 +5,7 @@ they come, each record and line once, however long the child has been writing.""
 from __future__ import annotations
 
 import json
+import logging
 import sys
 import threading
 import time
@@ -56,6 +57,30 @@ def test_records_of_a_wake_up_wait_until_its_outputs_are_written_and_keep_their_
     assert [record.get("n") for record in follower.records("take")] == [1, 2]
     assert follower.records()[-1]["kind"] == "sample"
     writer.close()
+
+
+@pytest.mark.fast
+def test_a_record_held_back_is_written_before_the_next_line_its_thread_says(tmp_path: Path) -> None:
+    """Whoever reads a line finds the records made before it (the HMI records a lost alert source, then says it)."""
+    path = tmp_path / "app.jsonl"
+    follower = stats.Follower(path)
+    writer = stats.Stats(path, "app")
+    log = logging.getLogger("test_status_records.said")
+    said: list[int] = []
+    handler = logging.Handler()
+    handler.emit = lambda record: said.append(len(follower.records()))  # type: ignore[method-assign]
+    log.addHandler(handler)
+    log.propagate = False
+    try:
+        with writer.deferred(log):
+            writer.record("source", alive=False)
+            log.warning("alert source LOST")
+            writer.record("take")
+        assert said == [1] and [record["kind"] for record in follower.records()] == ["source", "take"]
+        assert handler.filters == []  # the filter goes with the loop
+    finally:
+        log.removeHandler(handler)
+        writer.close()
 
 
 def test_a_line_still_being_written_waits_and_what_is_not_a_record_is_passed_over(tmp_path: Path) -> None:

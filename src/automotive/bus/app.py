@@ -406,7 +406,7 @@ class Application:
         The application calls :meth:`tick` for each unit of its work, which ends the loop after ``--count`` of them.
         """
         self.ready()
-        with deferred_bookkeeping() as book_takes, self.stats.deferred() as write_records:
+        with deferred_bookkeeping() as book_takes, self.stats.deferred(self.log) as write_records:
             while self.running:
                 book_takes()  # the counts and latencies of the last wake-up's takes, after its outputs
                 write_records()  # and its --stats records

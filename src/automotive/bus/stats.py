@@ -11,6 +11,7 @@ that fails later (a full disk) is said once on stderr and ends the records, not 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import sys
 import threading
@@ -75,16 +76,23 @@ class Stats:
         self._write(time.time(), kind, fields)
 
     @contextmanager
-    def deferred(self) -> Iterator[Callable[[], None]]:
+    def deferred(self, log: logging.Logger | None = None) -> Iterator[Callable[[], None]]:
         """Within, this thread's records wait for the function it gives, which the caller calls once it has written
         its outputs (an application's wake-up loop: a record, JSON and a write, would delay the outputs that the
-        alert chain waits for); each keeps the time it was made. At the end, what is left is written. Other threads'
-        records are written at once."""
+        alert chain waits for); each keeps the time it was made. They are written before any line this thread says
+        through ``log`` too: whoever reads a line finds the records made before it. At the end, what is left is
+        written. Other threads' records are written at once."""
         thread = threading.get_ident()
         self._deferred[thread] = []
+        before_saying = _RecordsBeforeLines(self, thread)
+        handlers = list(log.handlers) if log is not None else []
+        for handler in handlers:
+            handler.addFilter(before_saying)
         try:
             yield lambda: self._write_deferred(thread)
         finally:
+            for handler in handlers:
+                handler.removeFilter(before_saying)
             self._write_deferred(thread)
             del self._deferred[thread]
 
@@ -125,6 +133,21 @@ class Stats:
                 except OSError as error:
                     self._give_up(error)
                 self._stream = None
+
+
+class _RecordsBeforeLines(logging.Filter):
+    """A log handler's filter that writes the waiting records of one thread (:meth:`Stats.deferred`) before the
+    thread's next line; it lets every line through."""
+
+    def __init__(self, stats: Stats, thread: int):
+        super().__init__()
+        self.stats = stats
+        self.thread = thread
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if threading.get_ident() == self.thread:
+            self.stats._write_deferred(self.thread)
+        return True
 
 
 class Follower:
