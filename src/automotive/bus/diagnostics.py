@@ -150,9 +150,10 @@ def rates_line(rates_in: dict[str, float], rates_out: dict[str, float]) -> str:
 
 
 class ProcessUsage:
-    """This process's resident memory, and its CPU since the last look, read the cheap way: ``getrusage`` and one read
-    of /proc/self/statm. psutil's ``Process.memory_info`` and ``cpu_percent`` took about 0.2 ms of the 0.4 ms that a
-    report cost, once a second in every program (docs/measurements/shared-memory-default.md)."""
+    """This process's CPU since the last look, read the cheap way (``getrusage``; its resident memory:
+    :func:`automotive.bus.memtune.resident_bytes`). psutil's ``Process.memory_info`` and ``cpu_percent`` took about
+    0.2 ms of the 0.4 ms that a report cost, once a second in every program
+    (docs/measurements/shared-memory-default.md)."""
 
     def __init__(self) -> None:
         self._last = self._times()
@@ -162,10 +163,6 @@ class ProcessUsage:
         """(monotonic seconds, CPU seconds of every thread of the process)."""
         usage = resource.getrusage(resource.RUSAGE_SELF)
         return time.monotonic(), usage.ru_utime + usage.ru_stime
-
-    @staticmethod
-    def rss_bytes() -> int:
-        return memtune.resident_bytes()
 
     def cpu_percent(self) -> float:
         """Percent of one core since the last call (the first: since this object was made)."""
@@ -278,7 +275,7 @@ class Diagnostics:
                                                                "offered_incompatible_qos"))),
             ]
         values += latency_values(latency.recent.summaries())
-        rss_mb = self.usage.rss_bytes() / 1e6
+        rss_mb = memtune.resident_bytes() / 1e6
         cpu = self.usage.cpu_percent()
         values += [("bad samples", str(reported)), ("RSS MB", f"{rss_mb:.1f}"), ("CPU %", f"{cpu:.1f}"),
                    ("pid", str(os.getpid())), ("domain", str(program.domain_id)),

@@ -189,9 +189,9 @@ class CloudBuffer:
         # The stamp is the first member, after the DHEADERs of the cloud, its header and the stamp (XCDR2 only).
         self._stamp_at = 4 + (12 if encapsulation in _D_CDR2 else 0)
         self._stamp = struct.Struct(order + "iI")
-        self.point_count = int(cloud.height_) * int(cloud.width_)
         self.points: npt.NDArray[np.float32] = np.frombuffer(
-            self.buffer, dtype=np.float32, count=self.point_count * 4, offset=where.start).reshape(-1, 4)
+            self.buffer, dtype=np.float32, count=int(cloud.height_) * int(cloud.width_) * 4,
+            offset=where.start).reshape(-1, 4)
         self.data = memoryview(self.buffer)
 
     def stamp(self, sec: int, nanosec: int) -> None:
