@@ -28,6 +28,7 @@ from cyclonedds.qos import DataReaderQos, Policy
 from cyclonedds.sub import DataReader
 
 from automotive import config
+from automotive.bus.console import write_line
 from automotive.bus.endpoints import Databus
 from automotive.bus.network import NetworkConfig
 from automotive.bus.qos import QosProfiles
@@ -64,10 +65,10 @@ def write(args: argparse.Namespace) -> int:
     deadline = time.monotonic() + args.timeout
     while len(matched_subscriptions(writer)) < args.readers:
         if time.monotonic() > deadline:
-            print(f"only {len(matched_subscriptions(writer))} of {args.readers} readers matched", flush=True)
+            write_line(f"only {len(matched_subscriptions(writer))} of {args.readers} readers matched")
             return 1
         time.sleep(0.05)  # polling a status: the readers are other processes on another host
-    print(f"matched {args.readers} readers in {time.monotonic() - created:.2f} s", flush=True)
+    write_line(f"matched {args.readers} readers in {time.monotonic() - created:.2f} s")
     start = time.monotonic()
     next_write = start
     for number in range(1, args.count + 1):
@@ -75,16 +76,16 @@ def write(args: argparse.Namespace) -> int:
         next_write = time.monotonic() + args.interval
         writer.write(alert_for(number))
         if args.wait_acks and not writer.wait_for_acks(int(args.timeout * 1e9)):
-            print(f"alert {number} not acknowledged within {args.timeout:g} s", flush=True)
+            write_line(f"alert {number} not acknowledged within {args.timeout:g} s")
             return 1
-        print(f"wrote alert {number}", flush=True)
+        write_line(f"wrote alert {number}")
         if args.step and number < args.count and sys.stdin.readline().strip() != "next":
-            print("stopped: no 'next' on standard input", flush=True)
+            write_line("stopped: no 'next' on standard input")
             return 1
     if not writer.wait_for_acks(int(args.timeout * 1e9)):
-        print(f"the last alerts were not acknowledged within {args.timeout:g} s", flush=True)
+        write_line(f"the last alerts were not acknowledged within {args.timeout:g} s")
         return 1
-    print(f"all {args.count} alerts acknowledged in {time.monotonic() - start:.2f} s", flush=True)
+    write_line(f"all {args.count} alerts acknowledged in {time.monotonic() - start:.2f} s")
     bus.close()
     return 0
 
@@ -98,13 +99,13 @@ def read(args: argparse.Namespace) -> int:
         reader = bus.reader("AlertTopic", DriverAlerts, "HMI")
     waitset = WaitSet(bus.participant)
     waitset.attach(ReadCondition(reader, SampleState.NotRead | ViewState.Any | InstanceState.Any))
-    print("reading alerts", flush=True)
+    write_line("reading alerts")
     try:
         while True:
             waitset.wait(int(1e9))
             for sample in reader.take(N=100):
                 if isinstance(sample, DriverAlerts):
-                    print(f"alert {number_of(sample)}", flush=True)
+                    write_line(f"alert {number_of(sample)}")
     except KeyboardInterrupt:
         pass
     finally:

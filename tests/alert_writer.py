@@ -14,6 +14,7 @@ from pathlib import Path
 
 from dds_helpers import make_bus
 
+from automotive.bus.console import write_line
 from automotive.types.Alerts import DriverAlerts
 
 FLAGS = ("blindSpotDriver", "blindSpotPassenger", "frontCollision", "backCollision", "parkingCollision",
@@ -23,14 +24,14 @@ FLAGS = ("blindSpotDriver", "blindSpotPassenger", "frontCollision", "backCollisi
 def main() -> None:
     bus = make_bus(int(sys.argv[1]), Path(sys.argv[2]))
     writer = bus.writer("AlertTopic", DriverAlerts, "HMI")
-    print("ready", flush=True)
+    write_line("ready")
     for line in sys.stdin:
         flags = [word for word in line.split() if word != "clear"]
         unknown = set(flags) - set(FLAGS)
         if unknown:
             raise SystemExit(f"alert_writer: unknown flag(s) {sorted(unknown)}; expected {', '.join(FLAGS)}")
         writer.write(DriverAlerts(**{flag: flag in flags for flag in FLAGS}))
-        print("wrote", " ".join(flags) or "clear", flush=True)
+        write_line("wrote " + (" ".join(flags) or "clear"))
     bus.close()
 
 
