@@ -150,10 +150,15 @@ def test_a_reader_reports_the_latency_of_each_topic_it_reads_and_of_each_writer_
         p50, p99 = (float(figures[f"{subject} latency {figure} ms (last 10 s)"]) for figure in ("p50", "p99"))
         samples = int(figures[f"{subject} latency samples (last 10 s)"])
         assert 0 < p50 <= p99 < 60_000 and samples > 0, (subject, p50, p99, samples)
-    # One writer each: all of a topic's samples are that writer's.
+    # One writer each: all of a topic's samples are that writer's, but for the first clouds a loaded machine may
+    # deliver through shared memory before DDS matched their writer, which count as "unknown"'s for 10 s
+    # (FlowReader's LocalWriters.shared_writer; a clean-clone run with a core kept busy: 20 samples, 19 the LiDAR's).
     for topic, writer in (("VisionTopic", "vision"), ("rt/LidarTopic", "lidar")):
-        assert figures[f"{topic} latency samples (last 10 s)"] == figures[
-            f"{topic} from {writer} latency samples (last 10 s)"]
+        per_writer = {key.split(" from ", 1)[1].removesuffix(" latency samples (last 10 s)"): int(value)
+                      for key, value in figures.items()
+                      if key.startswith(f"{topic} from ") and key.endswith(" latency samples (last 10 s)")}
+        assert set(per_writer) <= {writer, "unknown"} and per_writer[writer] > 0, per_writer
+        assert int(figures[f"{topic} latency samples (last 10 s)"]) == sum(per_writer.values()), per_writer
     assert not [key for key in figures if key.startswith("SensorObjects") and "latency" in key]  # written, not read
 
 
