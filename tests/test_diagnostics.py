@@ -115,7 +115,8 @@ def test_a_running_application_reports_once_a_second_as_ros2_reads_it(  # type: 
     stamps = [array.header.stamp.sec + array.header.stamp.nanosec / 1e9 for array in arrays]
     assert all(abs(stamp - time.time()) < 60 for stamp in stamps)
     assert all(len(array.status) == 1 for array in arrays)
-    assert 0.5 < stamps[-1] - stamps[-2] < 2.0, stamps  # once a second
+    # Once a second, on a fixed schedule: a report the machine delayed by d is followed by one on time, 1 - d later
+    assert 0.2 < stamps[-1] - stamps[-2] < 3.0, stamps
 
     # The vision writes and reads nothing it needs: OK, with the console's status words.
     for status in (first, second):

@@ -153,8 +153,15 @@ def test_a_late_exclusive_rti_reader_follows_a_failover(redundant_system: Runnin
         switched = system.app_lines("vehicle_platform", "owner changed")
         os.kill(primary, signal.SIGSTOP)
         try:
-            system.wait_app_line("vehicle_platform", "owner changed", switched, timeout=30)
-            commands = [*before, *peer.take_until("PlatformControl", 5, timeout=30)]
+            # Taken as they come until the platform names its new owner: the reader keeps 100 commands (2 s at the
+            # 50 a second here), and on a slow machine a command lost to its history would read as a failover gap.
+            commands = list(before)
+            deadline = time.monotonic() + 30
+            while system.app_lines("vehicle_platform", "owner changed") <= switched:
+                assert time.monotonic() < deadline, "the vehicle platform did not change owner"
+                commands += peer.take("PlatformControl")
+                time.sleep(0.05)
+            commands += peer.take_until("PlatformControl", 5, timeout=30)
         finally:
             os.kill(primary, signal.SIGCONT)
     # The commands' own timestamps (written by whichever instance owned the topic): the largest gap is the failover
