@@ -18,6 +18,7 @@ from apprunner import DEFAULT_SIGINT, signal_state
 
 from automotive import command
 from automotive.bus.version import DISTRIBUTION
+from automotive.tools.support.children import handles_signal
 
 AUTOMOTIVE = [sys.executable, "-m", "automotive"]
 APPLICATION_SCRIPTS = {f"automotive-{name.replace('_', '-')}": f"automotive.start:{name}" for name in command.APPS}
@@ -117,21 +118,11 @@ def test_a_benchmark_whose_reader_leaves_ends_quietly(domain_id: int) -> None:
 SCRIPTS = Path(sys.executable).parent  # the console scripts of this installation
 
 
-def catches(pid: int, sig: int) -> bool:
-    """Whether the process has a handler of its own for ``sig`` (its SigCgt mask in /proc)."""
-    try:
-        status = Path(f"/proc/{pid}/status").read_text()
-    except OSError:
-        return False
-    caught = next(line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:"))
-    return bool(int(caught, 16) >> (sig - 1) & 1)
-
-
 def wait_until_caught(process: subprocess.Popen[str], sig: int = signal.SIGTERM) -> None:
     """Until the program's entry (automotive.start) handles SIGTERM: from then on it is still importing for a second
     or more, and no signal may end it with a traceback or without a word."""
     deadline = time.monotonic() + 30
-    while not catches(process.pid, sig):
+    while not handles_signal(process.pid, sig):
         assert process.poll() is None, f"it ended first: {process.communicate()}"
         assert time.monotonic() < deadline, "the entry never handled SIGTERM"
         time.sleep(0.001)  # polling /proc: nothing to wait on
@@ -176,7 +167,7 @@ def test_a_launcher_stopped_while_its_applications_start_ends_cleanly(tmp_path: 
     assert len(pids) == 2, pids
     for pid in pids:  # each application's entry handles SIGTERM (it is importing, or already running)
         deadline = time.monotonic() + 30
-        while not catches(pid, signal.SIGTERM):
+        while not handles_signal(pid, signal.SIGTERM):
             assert time.monotonic() < deadline, f"pid {pid} never handled SIGTERM"
             time.sleep(0.001)
     process.send_signal(signal.SIGTERM)
@@ -185,6 +176,37 @@ def test_a_launcher_stopped_while_its_applications_start_ends_cleanly(tmp_path: 
     summary = out.split("how each application ended:")[1]
     assert summary.count("stopped on SIGTERM, exit code 0") == 2, out
     assert "Traceback" not in out and "killed" not in out, out
+
+
+def test_a_launcher_stopped_before_its_applications_handle_sigterm_lets_them_end_cleanly(tmp_path: Path,
+                                                                                         domain_id: int) -> None:
+    """Before a program's entry (automotive.start) runs, its interpreter is starting: SIGTERM's default action would
+    end it "killed by SIGTERM". The launcher's stop waits until each application handles the signal, then sends it.
+    Here the window is made long: the application's interpreter sleeps 1.5 s in a sitecustomize before the entry."""
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(
+        "import sys, time\nif any(arg.startswith('automotive.apps.') for arg in sys.argv):\n    time.sleep(1.5)\n")
+    path = os.pathsep.join(part for part in (str(site), os.environ.get("PYTHONPATH", "")) if part)
+    process = subprocess.Popen([*DEFAULT_SIGINT, sys.executable, "-m", "automotive.start",
+                                "automotive.tools.launch.launch", "--mode", "background", "--domain", str(domain_id),
+                                "--log-dir", str(tmp_path / "logs"), "vision"],
+                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                               env={**os.environ, "PYTHONPATH": path, "DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    assert process.stdout is not None
+    pid = None
+    for line in process.stdout:
+        if "started vision (pid " in line:
+            pid = int(line.split("(pid ")[1].split(")")[0])
+        if "application(s) running" in line:
+            break
+    assert pid is not None and not handles_signal(pid, signal.SIGTERM)  # still in its sitecustomize
+    process.send_signal(signal.SIGTERM)
+    out, _ = process.communicate(timeout=60)
+    assert process.returncode == 0, out
+    summary = out.split("how each application ended:")[1]
+    assert "vision  pid" in summary and "stopped on SIGTERM, exit code 0" in summary, out
+    assert "killed" not in out and "Traceback" not in out, out
 
 
 @pytest.mark.parametrize("args", EVERY_COMMAND, ids=" ".join)

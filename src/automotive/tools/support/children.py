@@ -107,6 +107,19 @@ def work_folder(prefix: str, keep: Path | None = None) -> Iterator[Path]:
             yield Path(folder)
 
 
+def handles_signal(pid: int, sig: int) -> bool:
+    """Whether process ``pid`` has a handler of its own for ``sig`` (the SigCgt mask of /proc/PID/status; False when
+    the process is gone or the mask cannot be read)."""
+    try:
+        with open(f"/proc/{pid}/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("SigCgt:"):
+                    return bool(int(line.split()[1], 16) >> (sig - 1) & 1)
+    except (OSError, ValueError, IndexError):
+        pass
+    return False
+
+
 @dataclass(frozen=True)
 class Line:
     time: float  # time.monotonic() when it was read
@@ -270,6 +283,19 @@ class Child:
             self.process.send_signal(sig)
         except ProcessLookupError:
             pass
+
+    def wait_until_handled(self, sig: int, timeout: float) -> bool:
+        """Wait up to ``timeout`` seconds until the child handles ``sig`` itself; False if it never did or ended.
+
+        A program of the package handles SIGTERM from the first line of automotive.start on; before that, in the tens
+        of milliseconds (more on a loaded machine) in which the interpreter starts, SIGTERM's default action would end
+        it without a word, "killed by SIGTERM", instead of the clean stop it asks for."""
+        deadline = time.monotonic() + timeout
+        while not handles_signal(self.process.pid, sig):
+            if self.process.poll() is not None or time.monotonic() >= deadline:
+                return False
+            time.sleep(0.005)
+        return True
 
     @contextmanager
     def frozen(self) -> Iterator[None]:
