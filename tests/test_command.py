@@ -10,7 +10,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -18,7 +17,7 @@ from apprunner import DEFAULT_SIGINT, signal_state
 
 from automotive import command
 from automotive.bus.version import DISTRIBUTION
-from automotive.tools.support.children import handles_signal
+from automotive.tools.support.children import handles_signal, wait_until_handled
 
 AUTOMOTIVE = [sys.executable, "-m", "automotive"]
 APPLICATION_SCRIPTS = {f"automotive-{name.replace('_', '-')}": f"automotive.start:{name}" for name in command.APPS}
@@ -121,11 +120,9 @@ SCRIPTS = Path(sys.executable).parent  # the console scripts of this installatio
 def wait_until_caught(process: subprocess.Popen[str], sig: int = signal.SIGTERM) -> None:
     """Until the program's entry (automotive.start) handles SIGTERM: from then on it is still importing for a second
     or more, and no signal may end it with a traceback or without a word."""
-    deadline = time.monotonic() + 30
-    while not handles_signal(process.pid, sig):
+    if not wait_until_handled(process.pid, sig, 30, lambda: process.poll() is not None):
         assert process.poll() is None, f"it ended first: {process.communicate()}"
-        assert time.monotonic() < deadline, "the entry never handled SIGTERM"
-        time.sleep(0.001)  # polling /proc: nothing to wait on
+        raise AssertionError("the entry never handled SIGTERM")
 
 
 @pytest.mark.parametrize(("command_line", "name"), [
@@ -166,10 +163,7 @@ def test_a_launcher_stopped_while_its_applications_start_ends_cleanly(tmp_path: 
             break
     assert len(pids) == 2, pids
     for pid in pids:  # each application's entry handles SIGTERM (it is importing, or already running)
-        deadline = time.monotonic() + 30
-        while not handles_signal(pid, signal.SIGTERM):
-            assert time.monotonic() < deadline, f"pid {pid} never handled SIGTERM"
-            time.sleep(0.001)
+        assert wait_until_handled(pid, signal.SIGTERM, 30), f"pid {pid} never handled SIGTERM"
     process.send_signal(signal.SIGTERM)
     out, _ = process.communicate(timeout=60)
     assert process.returncode == 0, out

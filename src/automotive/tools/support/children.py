@@ -120,6 +120,17 @@ def handles_signal(pid: int, sig: int) -> bool:
     return False
 
 
+def wait_until_handled(pid: int, sig: int, timeout: float, ended: Callable[[], bool] = lambda: False) -> bool:
+    """Wait up to ``timeout`` seconds until process ``pid`` handles ``sig`` itself; False if it never did in that time
+    or ``ended()`` said it is gone (/proc is polled: there is nothing to wait on)."""
+    deadline = time.monotonic() + timeout
+    while not handles_signal(pid, sig):
+        if ended() or time.monotonic() >= deadline:
+            return False
+        time.sleep(0.001)
+    return True
+
+
 @dataclass(frozen=True)
 class Line:
     time: float  # time.monotonic() when it was read
@@ -290,12 +301,7 @@ class Child:
         A program of the package handles SIGTERM from the first line of automotive.start on; before that, in the tens
         of milliseconds (more on a loaded machine) in which the interpreter starts, SIGTERM's default action would end
         it without a word, "killed by SIGTERM", instead of the clean stop it asks for."""
-        deadline = time.monotonic() + timeout
-        while not handles_signal(self.process.pid, sig):
-            if self.process.poll() is not None or time.monotonic() >= deadline:
-                return False
-            time.sleep(0.005)
-        return True
+        return wait_until_handled(self.process.pid, sig, timeout, lambda: self.process.poll() is not None)
 
     @contextmanager
     def frozen(self) -> Iterator[None]:
