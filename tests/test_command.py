@@ -10,6 +10,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -17,7 +18,7 @@ from apprunner import DEFAULT_SIGINT, signal_state
 
 from automotive import command
 from automotive.bus.version import DISTRIBUTION
-from automotive.tools.support.children import handles_signal, wait_until_handled
+from automotive.tools.support.children import Child, handles_signal, wait_until_handled
 
 AUTOMOTIVE = [sys.executable, "-m", "automotive"]
 APPLICATION_SCRIPTS = {f"automotive-{name.replace('_', '-')}": f"automotive.start:{name}" for name in command.APPS}
@@ -201,6 +202,19 @@ def test_a_launcher_stopped_before_its_applications_handle_sigterm_lets_them_end
     summary = out.split("how each application ended:")[1]
     assert "vision  pid" in summary and "stopped on SIGTERM, exit code 0" in summary, out
     assert "killed" not in out and "Traceback" not in out, out
+
+
+def test_a_second_ctrl_c_ends_the_wait_for_a_starting_application() -> None:
+    """The launcher's stop waits until starting applications handle SIGTERM; a second Ctrl-C (``give_up``) ends that
+    wait at once. Here the child never handles it: without ``give_up`` the call would take its whole 60 s."""
+    child = Child("sleeper", [sys.executable, "-c", "import time; time.sleep(120)"])
+    try:
+        begun = time.monotonic()
+        assert not child.wait_until_handled(signal.SIGTERM, 60, give_up=lambda: True)
+        assert time.monotonic() - begun < 30
+        assert child.poll() is None  # it was only given up on, not ended
+    finally:
+        child.stop(signal.SIGKILL, timeout=10)
 
 
 @pytest.mark.parametrize("args", EVERY_COMMAND, ids=" ".join)

@@ -37,7 +37,7 @@ from automotive.tools.launch.registry import (
 from automotive.tools.support import children
 from automotive.tools.support.children import Child, Line
 
-HANDLER_WAIT_S = 2.0  # the longest a stop waits for a starting application to handle SIGTERM (it takes milliseconds)
+HANDLER_WAIT_S = 2.0  # the longest a stop waits for starting applications to handle SIGTERM (it takes milliseconds)
 SECOND_INTERRUPT_AFTER_S = 0.5  # an interrupt sooner than this after the first is the same one, delivered twice
 # The monitor's line that gives its page's URL (automotive.tools.monitor.monitor.URL_LINE): said once by the launcher.
 MONITOR_URL_LINE = re.compile(r"^automotive monitor: the page is on (\S+)$")
@@ -243,11 +243,13 @@ class Supervisor:
         if not running:
             return
         self.console.say(f"stopping {len(running)} application(s): SIGTERM, then SIGKILL after {self.stop_timeout:g} s")
+        # An application still starting its interpreter is let to install its handler first: then it ends with exit
+        # code 0, as a stop asks, not killed by the signal's default action (tens of milliseconds at most). They start
+        # together, so one deadline serves them all; a second Ctrl-C waits no more.
+        handlers_deadline = time.monotonic() + HANDLER_WAIT_S
         for app in running:
-            # An application still starting its interpreter is let to install its handler first: then it ends with
-            # exit code 0, as a stop asks, not killed by the signal's default action (tens of milliseconds at most)
-            if not self.kill_now:
-                app.child.wait_until_handled(signal.SIGTERM, HANDLER_WAIT_S)
+            app.child.wait_until_handled(signal.SIGTERM, max(0.0, handlers_deadline - time.monotonic()),
+                                         give_up=lambda: self.kill_now)
             app.term_sent = time.monotonic()
             self._signal(app, signal.SIGTERM)
         now = time.monotonic()

@@ -295,13 +295,14 @@ class Child:
         except ProcessLookupError:
             pass
 
-    def wait_until_handled(self, sig: int, timeout: float) -> bool:
-        """Wait up to ``timeout`` seconds until the child handles ``sig`` itself; False if it never did or ended.
+    def wait_until_handled(self, sig: int, timeout: float, give_up: Callable[[], bool] = lambda: False) -> bool:
+        """Wait up to ``timeout`` seconds until the child handles ``sig`` itself; False if it never did, ended, or
+        ``give_up()`` said to wait no more.
 
         A program of the package handles SIGTERM from the first line of automotive.start on; before that, in the tens
         of milliseconds (more on a loaded machine) in which the interpreter starts, SIGTERM's default action would end
         it without a word, "killed by SIGTERM", instead of the clean stop it asks for."""
-        return wait_until_handled(self.process.pid, sig, timeout, lambda: self.process.poll() is not None)
+        return wait_until_handled(self.process.pid, sig, timeout, lambda: give_up() or self.process.poll() is not None)
 
     @contextmanager
     def frozen(self) -> Iterator[None]:
