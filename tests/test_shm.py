@@ -308,9 +308,9 @@ def test_a_shared_first_waitset_wakes_on_a_sample_and_on_the_dds_side_once_a_rou
         waits.wait(int(0.2e9))  # (a round that began before the take may still come)
         assert waits.wait(int(0.2e9)) == 0
         # one way of waiting per subscriber
-        with pytest.raises(RuntimeError, match="already wakes"):
+        with pytest.raises(RuntimeError, match="already waited on by a SharedFirstWaitSet"):
             SharedFirstWaitSet(reader, dds)
-        with pytest.raises(RuntimeError, match="is waited on by a SharedFirstWaitSet"):
+        with pytest.raises(RuntimeError, match="already waited on by a SharedFirstWaitSet"):
             reader.wake(GuardCondition(participant))
     finally:
         writer.close()

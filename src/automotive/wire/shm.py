@@ -558,7 +558,7 @@ class SharedReader:
             self.notifier = memory.consumed.notifier_builder().create()
         self._waking: threading.Thread | None = None
         self._closing: list[Callable[[], None]] = []
-        self._waited_on = False  # a SharedFirstWaitSet waits on the listener
+        self._listener_waiter: str | None = None  # what waits on the listener: one, or the two split its events
         self._stop = threading.Event()
         self._last_sequence: dict[int, int] = {}  # publisher id -> the sequence of its last sample received
 
@@ -571,8 +571,7 @@ class SharedReader:
         """Set ``guard`` whenever samples were sent or a publisher leaves, from a thread of its own (started once)."""
         if self._waking is not None:
             return
-        if self._waited_on:
-            raise RuntimeError("the shared-memory listener is waited on by a SharedFirstWaitSet")
+        self.claim_listener("a guard condition's thread (SharedReader.wake)")
 
         def run() -> None:
             while not self._stop.is_set():
@@ -581,6 +580,12 @@ class SharedReader:
 
         self._waking = threading.Thread(target=run, name=f"shm-wake {self.memory.topic}", daemon=True)
         self._waking.start()
+
+    def claim_listener(self, waiter: str) -> None:
+        """Make ``waiter`` the one that waits on the listener: two would each get a part of its events."""
+        if self._listener_waiter is not None:
+            raise RuntimeError(f"the shared-memory listener is already waited on by {self._listener_waiter}")
+        self._listener_waiter = waiter
 
     def wait(self, seconds: float) -> bool:
         """Wait at most ``seconds`` for samples sent (or a publisher leaving): for a subscriber without :meth:`wake`
@@ -665,10 +670,7 @@ class SharedFirstWaitSet:
     Its timeout is iceoryx2's, in whole milliseconds rounded up (epoll): a periodic wake-up comes up to 1 ms late."""
 
     def __init__(self, reader: SharedReader, dds: WaitSet):
-        if reader.wakes or reader._waited_on:
-            raise RuntimeError("the shared-memory listener already wakes a guard condition (SharedReader.wake) or "
-                               "a SharedFirstWaitSet")
-        reader._waited_on = True
+        reader.claim_listener("a SharedFirstWaitSet")
         self._listener = reader.listener
         self._dds = dds
         self._read_fd, self._write_fd = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
