@@ -288,8 +288,10 @@ def test_double_fault_primary_resumes_as_the_standby_freezes(apps, domain_id: in
     system.commands_answered_fresh_lists("collision_avoidance-2", standby_resumed_at)
     rti_commands.get_again("the standby resumed")
     assert last_platform_owner(system) == "collision_avoidance (strength 20)", system.platform.output[-2000:]
-    # A live writer all along: the platform never lost every command writer (it would renumber from anyone then).
-    assert system.platform.count("no command writer alive") == lost_all, system.platform.output[-2000:]
+    # A live writer all along, but for an instant at most: the standby's lease (250 ms, Cyclone re-asserting at 80 %
+    # of it) runs out 50-250 ms after it froze, and a resumed primary whose first assertion a loaded host delays
+    # past that loses the platform every writer once; its numbering is still taken after the standby's (checked below).
+    assert system.platform.count("no command writer alive") <= lost_all + 1, system.platform.output[-2000:]
     system.check_consistent()
 
 
