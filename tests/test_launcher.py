@@ -20,6 +20,7 @@ from dds_helpers import wait_until
 
 from automotive import config
 from automotive.bus import stats
+from automotive.tools.launch.display import Console
 from automotive.tools.launch.supervisor import SECOND_INTERRUPT_AFTER_S
 from automotive.tools.support import children
 
@@ -186,6 +187,73 @@ def test_one_ctrl_c_delivered_twice_stops_cleanly_and_a_later_second_one_kills(a
         if alive(pids["vision"]):
             os.kill(pids["vision"], signal.SIGKILL)
     launcher.wait_for(r"^launch\s+\| vision killed at once on a second Ctrl-C: killed by SIGKILL", timeout=1)
+
+
+# The launcher in a mount namespace of its own, its log folder a small tmpfs mounted there (the namespace goes with the
+# launcher); the test reaches that tmpfs through /proc/PID/root.
+ON_A_SMALL_DISK = 'mount -t tmpfs -o size=1m tmpfs "$1" && shift && exec "$@"'
+
+
+def test_a_full_disk_loses_log_lines_with_a_word_and_never_stops_the_applications(  # type: ignore[no-untyped-def]
+        apps, domain_id: int, tmp_path: Path) -> None:
+    """An application whose output nobody reads blocks once the pipe is full: a log file that cannot be written must
+    not stop the launcher's reading. The failure is said once; the console still shows each sample; once there is
+    room again, the file and the console say how many lines are not in it."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    launcher = apps.start_command("launch", [
+        "unshare", "--mount", "--propagation", "private", "sh", "-c", ON_A_SMALL_DISK, "small-disk", str(disk),
+        *LAUNCH, "--mode", "background", "-v", "--domain", str(domain_id), "--log-dir", str(disk), "vision"],
+        env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    launcher.wait_for(app_line("vision", STEADY["vision"]))
+    inside = Path(f"/proc/{launcher.pid}/root{disk}")  # the tmpfs, as the launcher sees it
+    filler = inside / "filler"
+    with open(filler, "wb") as stream:
+        try:
+            while True:
+                stream.write(bytes(65536))
+                stream.flush()
+        except OSError as error:
+            assert "No space left" in str(error), error
+    launcher.wait_for(rf"^launch\s+\| {re.escape(str(disk))}/vision\.log: No space left on device; its lines are not "
+                      r"kept until a write succeeds again \(tried every 5 s\)$")
+    sample = app_line("vision", r"published sample \d+:")
+    launcher.wait_for_more(sample, 3)  # the console still gets every sample: the launcher reads on
+    assert launcher.poll() is None
+
+    filler.unlink()
+    again = launcher.wait_for(rf"^launch\s+\| {re.escape(str(disk))}/vision\.log: written again; (\d+) line\(s\) "
+                              r"from \d\d:\d\d:\d\d to \d\d:\d\d:\d\d \(No space left on device\) are not in it$")
+    lost = int(re.search(r"again; (\d+) line", again).group(1))  # type: ignore[union-attr]
+    assert lost >= 3, again
+    launcher.wait_for_more(sample, 1)
+    text = (inside / "vision.log").read_text(errors="replace")
+    marker = re.search(rf"^--- not written here: {lost} line\(s\) from .* \(No space left on device\)$", text, re.M)
+    assert marker is not None, text[-3000:]
+    wait_until(lambda: "published sample" in (inside / "vision.log").read_text(errors="replace")[marker.end():],
+               timeout=30, what="a sample's line in vision.log after its note of the lines not in it")
+
+    launcher.process.send_signal(signal.SIGTERM)
+    assert launcher.wait_exit(timeout=30) == 0, launcher.output[-3000:]
+    assert "Traceback" not in launcher.output, launcher.output[-3000:]
+
+
+def test_the_launchers_own_log_that_cannot_be_written_is_said_on_the_console_only(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """/dev/full fails every write with ENOSPC: the launcher's lines still reach the console, and so does one line
+    about its log, once (a failure of the launcher's log is not written into the launcher's log)."""
+    console = Console(["vision"], show_apps=True, launcher_log=Path("/dev/full"))
+    for number in range(3):
+        console.say(f"line {number}")
+    console.close()
+    lines = capsys.readouterr().out.splitlines()
+    assert lines == ["launch | line 0",
+                     "launch | /dev/full: No space left on device; its lines are not kept until a write succeeds "
+                     "again (tried every 5 s)",
+                     "launch | line 1", "launch | line 2",
+                     "launch | /dev/full: 3 line(s) from " + lines[-1].split(" from ")[1]], lines
+    assert re.fullmatch(r"launch \| /dev/full: 3 line\(s\) from \d\d:\d\d:\d\d on are not in it \(No space left on "
+                        r"device\)", lines[-1]), lines
 
 
 def test_subset_with_three_vision_sensors_stopped_by_launch_stop(apps, domain_id: int,  # type: ignore[no-untyped-def]

@@ -16,10 +16,11 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import IO, TYPE_CHECKING
+from typing import TYPE_CHECKING
 
 from automotive.bus.console import without_debug_record
 from automotive.tools.launch import plan
+from automotive.tools.launch.logfile import LogFile
 from automotive.tools.launch.plan import LaunchError
 from automotive.tools.launch.registry import SUMMARY_FILE
 
@@ -54,7 +55,8 @@ class Console:
         self.colours = {name: COLOURS[index % len(COLOURS)] for index, name in enumerate(names)}
         self.show_apps = show_apps
         self.lock = threading.Lock()
-        self.launcher_log: IO[str] | None = open(launcher_log, "w", encoding="utf-8") if launcher_log else None
+        # its own failures are said here only, not written into it
+        self.launcher_log = LogFile(launcher_log, self._launcher_line) if launcher_log else None
 
     def _prefix(self, name: str) -> str:
         label = name.ljust(self.width)
@@ -84,11 +86,13 @@ class Console:
             self._emit(self._prefix(name) + text)
 
     def say(self, text: str) -> None:
+        self._launcher_line(text)
+        if self.launcher_log is not None:
+            self.launcher_log.write(time.strftime("%H:%M:%S ") + text)
+
+    def _launcher_line(self, text: str) -> None:
         with self.lock:
             self._emit(self._prefix(LAUNCHER_LABEL) + text)
-            if self.launcher_log is not None:
-                self.launcher_log.write(time.strftime("%H:%M:%S ") + text + "\n")
-                self.launcher_log.flush()
 
     def close(self) -> None:
         if self.launcher_log is not None:

@@ -17,12 +17,12 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
 
 from automotive.bus.cli import DUMP_STACKS_SIGNAL, dump_stacks_on_request, on_signals, stop_dumping_stacks
 from automotive.bus.console import LOG_LEVEL_VARIABLE
 from automotive.tools.launch import plan
 from automotive.tools.launch.display import Console, TmuxViews, Views, WindowViews, find_terminal
+from automotive.tools.launch.logfile import LogFile
 from automotive.tools.launch.plan import MONITOR, AppSpec, LaunchError
 from automotive.tools.launch.registry import (
     PID_FILE,
@@ -65,11 +65,9 @@ def set_parent_death_signal() -> None:
 @dataclass
 class RunningApp:
     spec: AppSpec
-    log_path: Path
+    log: LogFile
     child: Child
     started: float = field(default_factory=time.monotonic)
-    log: IO[str] | None = None
-    log_lock: threading.Lock = field(default_factory=threading.Lock)
     last_error: str = ""  # its last line on stderr: usually why it ended
     term_sent: float | None = None
     killed: bool = False
@@ -80,6 +78,10 @@ class RunningApp:
     @property
     def name(self) -> str:
         return self.spec.name
+
+    @property
+    def log_path(self) -> Path:
+        return self.log.path
 
     @property
     def process(self) -> subprocess.Popen[bytes]:
@@ -135,8 +137,14 @@ class Supervisor:
                 "apps": {app.name: app.process.pid for app in self.apps}, "module": {
                     app.name: app.spec.module for app in self.apps}}
         temporary = self.log_dir / f".{PID_FILE}.{os.getpid()}"
-        temporary.write_text(json.dumps(info))
-        temporary.replace(self.log_dir / PID_FILE)
+        try:
+            temporary.write_text(json.dumps(info))
+            temporary.replace(self.log_dir / PID_FILE)
+        except OSError as error:  # a full disk: the applications run all the same
+            temporary.unlink(missing_ok=True)
+            self.console.say(f"cannot write {self.log_dir / PID_FILE}: {error.strerror or error}; "
+                             f"`{plan.PROG} stop` and `status` will not find this launcher (pid {os.getpid()}): "
+                             "Ctrl-C or SIGTERM stops it")
         if self.registry_entry is None:
             self.registry_entry = register_launcher(self.log_dir, self.domain)
 
@@ -157,8 +165,8 @@ class Supervisor:
         for spec in self.specs:
             if self.stop_requested:
                 break
-            log_path = self.log_dir / f"{spec.name}.log"
-            log_path.write_text(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} {shlex.join(spec.command)}\n")
+            log = LogFile(self.log_dir / f"{spec.name}.log", self.console.say)
+            log.write(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} {shlex.join(spec.command)}")
             try:
                 child = Child(spec.name, spec.command, env=env, separate_stderr=True,
                               new_session=True,  # Ctrl-C reaches the launcher only
@@ -167,22 +175,19 @@ class Supervisor:
                               on_end=lambda child, stream: self.wake.set())  # ending: look at it now
             except OSError as error:
                 self.console.say(f"cannot start {spec.name}: {error}")
+                log.close()
                 continue
-            self.apps.append(RunningApp(spec, log_path, child))
+            self.apps.append(RunningApp(spec, log, child))
             self.console.say(f"started {spec.name} (pid {child.pid}): python -m {children.program_module(spec.module)} "
                              f"{shlex.join(spec.args)}".rstrip())
         self.write_pid_file()
         for app in self.apps:
-            app.log = open(app.log_path, "a", encoding="utf-8")
             app.child.start_reading()
             self.views.open(app)
 
     def _on_line(self, child: Child, line: Line) -> None:
         app = next(app for app in self.apps if app.child is child)
-        assert app.log is not None
-        with app.log_lock:
-            app.log.write(line.text + "\n")
-            app.log.flush()
+        app.log.write(line.text)
         if line.stream == children.STDERR:
             app.last_error = line.text
         page = MONITOR_URL_LINE.match(line.text) if app.spec.module == MONITOR else None
@@ -214,10 +219,7 @@ class Supervisor:
             self.console.say(f"{app.name} {app.how}{last}")
         else:
             self.console.say(f"{app.name} {app.how}")
-        if app.log is not None:
-            with app.log_lock:
-                app.log.write(f"--- {app.name} {app.how}\n")
-                app.log.close()
+        app.log.close(f"--- {app.name} {app.how}")
 
     def poll(self) -> None:
         for app in self.running():
@@ -327,7 +329,10 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
         summary = supervisor.summary()
         for line in summary:
             console.say(line)
-        (log_dir / SUMMARY_FILE).write_text("\n".join(summary) + "\n")
+        try:
+            (log_dir / SUMMARY_FILE).write_text("\n".join(summary) + "\n")
+        except OSError as error:  # a full disk: the console has it
+            console.say(f"cannot write {log_dir / SUMMARY_FILE}: {error.strerror or error}")
         supervisor.remove_pid_file()
         console.close()
         stop_dumping_stacks()
