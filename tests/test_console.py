@@ -186,5 +186,6 @@ def test_the_launcher_console_cuts_a_sample_record_glued_to_another_writers_line
     console.app_line("hmi", "partial text of another writer" + RECORD)
     console.app_line("hmi", "12:00:01.300 hmi: status: in AlertTopic 10/s")
     console.app_line("hmi", "")  # a blank line of the application stays a blank line
+    console.close()  # its lines written out
     shown = [line.split(" | ", 1)[1] for line in capsys.readouterr().out.splitlines()]
     assert shown == ["partial text of another writer", "12:00:01.300 hmi: status: in AlertTopic 10/s", ""]

@@ -4,6 +4,7 @@ subsets and several vision sensors."""
 
 from __future__ import annotations
 
+import fcntl
 import importlib.util
 import os
 import re
@@ -254,6 +255,44 @@ def test_the_launchers_own_log_that_cannot_be_written_is_said_on_the_console_onl
                      "launch | /dev/full: 3 line(s) from " + lines[-1].split(" from ")[1]], lines
     assert re.fullmatch(r"launch \| /dev/full: 3 line\(s\) from \d\d:\d\d:\d\d on are not in it \(No space left on "
                         r"device\)", lines[-1]), lines
+
+
+def test_a_console_nobody_reads_never_stops_the_applications(domain_id: int, tmp_path: Path) -> None:
+    """A terminal paused with Ctrl-S, a pager scrolled back, a stalled ssh session: the launcher's output is not read.
+    The applications go on (their log files grow), the console holds what it can and says how many lines it left
+    out once it is read again, and the launcher still stops cleanly."""
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, 4096)  # full after some 60 lines
+    launcher = subprocess.Popen([*LAUNCH, "--mode", "background", "-v", "--domain", str(domain_id), "--log-dir",
+                                 str(tmp_path), "-D", "vision:config.pubInterval=2", "vision"],  # 500 lines a second
+                                stdout=write_end, stderr=subprocess.STDOUT,
+                                env={**os.environ, "DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    os.close(write_end)
+    try:
+        log = tmp_path / "vision.log"
+
+        def samples_in_log() -> int:
+            found = re.findall(r"published sample (\d+):", log.read_text(errors="replace")) if log.exists() else []
+            return int(found[-1]) if found else 0
+
+        # Far more lines than the pipe and the console's queue hold (2,000): some are left out, none waits.
+        wait_until(lambda: samples_in_log() > 3000, timeout=120, what="vision's 3,000th sample in its log file")
+        assert launcher.poll() is None
+        launcher.send_signal(signal.SIGTERM)
+        with os.fdopen(read_end, "r", errors="replace") as console:  # read at last
+            out = console.read()
+        read_end = -1
+        assert launcher.wait(timeout=60) == 0, out[-3000:]
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+        if read_end >= 0:
+            os.close(read_end)
+    left_out = re.findall(r"^launch\s+\| (\d+) line\(s\) not shown: the console was not read for a while \(the log "
+                          r"files have every line\)$", out, re.M)
+    assert left_out and sum(map(int, left_out)) > 500, out[-3000:]
+    assert "vision  pid" in out.split("how each application ended:")[1], out[-3000:]
+    assert "Traceback" not in out
 
 
 def test_subset_with_three_vision_sensors_stopped_by_launch_stop(apps, domain_id: int,  # type: ignore[no-untyped-def]

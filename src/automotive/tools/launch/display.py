@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import queue
 import re
 import shlex
 import shutil
@@ -36,6 +37,8 @@ DEBUG_LINE_GREP = "^[0-9:.]+ [^ ]+ debug: "
 # Not the HMI's "no alert source" or "no alert state yet": the start of a system is no alert.
 ALERT_LINE = re.compile(r"DRIVER ALERT|ALERT:|all clear|All clear|alert source (lost|LOST)")
 LAUNCHER_LABEL = "launch"
+CONSOLE_QUEUE_LINES = 2000  # lines held for a terminal that is not read, before any is left out
+CONSOLE_CLOSE_WAIT_S = 5.0  # how long the launcher's end waits for a terminal that is not read
 # The launcher's line once every application is started: what a program driving the launcher waits for.
 RUNNING_LINE = rf"^{LAUNCHER_LABEL}\s+\| \d+ application\(s\) running"
 COLOURS = (32, 36, 33, 35, 34, 92, 96, 93, 95, 94, 91, 31)
@@ -54,7 +57,14 @@ class Console:
         self.width = max([len(LAUNCHER_LABEL), *map(len, names)])
         self.colours = {name: COLOURS[index % len(COLOURS)] for index, name in enumerate(names)}
         self.show_apps = show_apps
-        self.lock = threading.Lock()
+        self.lock = threading.Lock()  # the queue's order and the count of lines left out
+        # The terminal is written by a thread of its own: a terminal paused (Ctrl-S), a pager scrolled back or a stalled
+        # ssh session blocks that thread only, never the readers of the applications' output (an application whose
+        # output nobody reads blocks at its next line once its pipe is full, and the alert chain with it).
+        self._lines: queue.Queue[str | None] = queue.Queue(maxsize=CONSOLE_QUEUE_LINES)
+        self._left_out = 0
+        self._writer = threading.Thread(target=self._write_lines, name="console", daemon=True)
+        self._writer.start()
         # its own failures are said here only, not written into it
         self.launcher_log = LogFile(launcher_log, self._launcher_line) if launcher_log else None
 
@@ -65,12 +75,25 @@ class Console:
         code = "1" if name == LAUNCHER_LABEL else str(self.colours.get(name, 37))
         return f"\033[{code}m{label}\033[0m | "
 
-    def _emit(self, line: str) -> None:
-        try:
-            sys.stdout.write(line + "\n")
-            sys.stdout.flush()
-        except (BrokenPipeError, ValueError):
-            pass  # nobody reads our output any more: the log files still have it
+    def _put(self, line: str) -> None:
+        """Queue ``line`` for the terminal; left out (and counted) while the queue is full: the terminal is not read."""
+        with self.lock:
+            try:
+                self._put_left_out()
+                self._lines.put_nowait(line)
+            except queue.Full:
+                self._left_out += 1
+
+    def _put_left_out(self) -> None:
+        """Under the lock: a line that says how many were left out, if any (raises queue.Full)."""
+        if self._left_out:
+            self._lines.put_nowait(self._prefix(LAUNCHER_LABEL) + f"{self._left_out} line(s) not shown: the console "
+                                   "was not read for a while (the log files have every line)")
+            self._left_out = 0
+
+    def _write_lines(self) -> None:
+        while (line := self._lines.get()) is not None:
+            _write_out(line + "\n")
 
     def app_line(self, name: str, text: str) -> None:
         if not self.show_apps:
@@ -82,8 +105,7 @@ class Console:
             text = shown
         if ALERT_LINE.search(text):  # an alert must not scroll by unseen among the status lines
             text = f"\033[1;7m{text}\033[0m" if self.colour else f">>> {text}"
-        with self.lock:
-            self._emit(self._prefix(name) + text)
+        self._put(self._prefix(name) + text)
 
     def say(self, text: str) -> None:
         self._launcher_line(text)
@@ -91,12 +113,39 @@ class Console:
             self.launcher_log.write(time.strftime("%H:%M:%S ") + text)
 
     def _launcher_line(self, text: str) -> None:
-        with self.lock:
-            self._emit(self._prefix(LAUNCHER_LABEL) + text)
+        self._put(self._prefix(LAUNCHER_LABEL) + text)
 
     def close(self) -> None:
+        """The lines still queued written out, unless the terminal is still not read after CONSOLE_CLOSE_WAIT_S."""
         if self.launcher_log is not None:
-            self.launcher_log.close()
+            self.launcher_log.close()  # what it says of itself, first
+        try:
+            with self.lock:
+                self._put_left_out()
+        except queue.Full:
+            pass
+        try:
+            self._lines.put(None, timeout=CONSOLE_CLOSE_WAIT_S)
+        except queue.Full:
+            pass
+        self._writer.join(timeout=CONSOLE_CLOSE_WAIT_S)
+
+
+def _write_out(text: str) -> None:
+    """``text`` on standard output, written at once. Through its file descriptor when it has one: a write that blocks
+    holds none of Python's locks then, and an interpreter ending meanwhile (the thread is a daemon) does not wait."""
+    try:
+        try:
+            descriptor = sys.stdout.fileno()
+        except (OSError, ValueError):  # a stream without one (a test's capture)
+            sys.stdout.write(text)
+            sys.stdout.flush()
+            return
+        data = text.encode(errors="replace")
+        while data:
+            data = data[os.write(descriptor, data):]
+    except (BrokenPipeError, ValueError):
+        pass  # nobody reads our output any more: the log files still have it
 
 
 # -- views: windows or tmux windows that show the log files ---------------------------------------------------------
