@@ -295,6 +295,21 @@ def test_a_console_nobody_reads_never_stops_the_applications(domain_id: int, tmp
     assert "Traceback" not in out
 
 
+def test_ctrl_z_does_not_suspend_the_launcher(apps, domain_id: int, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """A suspended launcher reads no more output: its applications would stop once their pipes are full."""
+    launcher = launch(apps, domain_id, tmp_path, "vision")
+    sample = app_line("vision", STEADY["vision"].replace("1:", r"\d+:"))
+    launcher.wait_for(sample)
+    launcher.process.send_signal(signal.SIGTSTP)
+    launcher.wait_for(r"^launch\s+\| Ctrl-Z: the launcher does not suspend \(its applications would stop at their next "
+                      r"lines with nobody to read them\); Ctrl-C stops the system$")
+    launcher.wait_for_more(sample, 3)
+    state = Path(f"/proc/{launcher.pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    assert state != "T", state  # not stopped
+    launcher.process.send_signal(signal.SIGINT)
+    assert launcher.wait_exit(timeout=STOP_TIMEOUT + 15) == 0, launcher.output[-3000:]
+
+
 def test_subset_with_three_vision_sensors_stopped_by_launch_stop(apps, domain_id: int,  # type: ignore[no-untyped-def]
                                                                   tmp_path: Path) -> None:
     others = [name for name in APPS if name not in ("vision", "sensor_fusion")]

@@ -132,6 +132,12 @@ class Supervisor:
         self.stop_requested = True
         self.wake.set()
 
+    def on_suspend(self, signum: int) -> None:
+        """Ctrl-Z: a suspended launcher would read no more of its applications' output, and each would stop at its
+        next lines once its pipe is full: the system stalled behind a shell prompt. It goes on, and says why."""
+        self.console.say("Ctrl-Z: the launcher does not suspend (its applications would stop at their next lines with "
+                         "nobody to read them); Ctrl-C stops the system")
+
     def write_pid_file(self) -> None:
         info = {"launcher": os.getpid(), "mode": self.mode, "stop_timeout": self.stop_timeout,
                 "apps": {app.name: app.process.pid for app in self.apps}, "module": {
@@ -315,6 +321,7 @@ def run_supervisor(args: argparse.Namespace, specs: list[AppSpec], missing: list
     supervisor.missing = missing
     dump_stacks_on_request()
     on_signals((signal.SIGINT, signal.SIGTERM, signal.SIGHUP), supervisor.on_signal)
+    on_signals((signal.SIGTSTP,), supervisor.on_suspend)
     for name, reason in missing:
         console.say(f"{name} is not available in this version ({reason}): not started")
     try:
