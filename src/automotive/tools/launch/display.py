@@ -124,11 +124,12 @@ class Console:
                 self._put_left_out()
         except queue.Full:
             pass
+        deadline = time.monotonic() + CONSOLE_CLOSE_WAIT_S
         try:
             self._lines.put(None, timeout=CONSOLE_CLOSE_WAIT_S)
         except queue.Full:
             pass
-        self._writer.join(timeout=CONSOLE_CLOSE_WAIT_S)
+        self._writer.join(timeout=max(0.0, deadline - time.monotonic()))
 
 
 def _write_out(text: str) -> None:
@@ -144,8 +145,8 @@ def _write_out(text: str) -> None:
         data = text.encode(errors="replace")
         while data:
             data = data[os.write(descriptor, data):]
-    except (BrokenPipeError, ValueError):
-        pass  # nobody reads our output any more: the log files still have it
+    except (OSError, ValueError):
+        pass  # nobody reads our output any more (a closed pipe, a terminal gone): the log files still have it
 
 
 # -- views: windows or tmux windows that show the log files ---------------------------------------------------------

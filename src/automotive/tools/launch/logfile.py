@@ -22,13 +22,12 @@ CLOCK = "%H:%M:%S"
 
 
 class LogFile:
-    """Lines appended to ``path`` (emptied first unless ``append``); ``report`` is given each line a person must see
+    """Lines appended to ``path`` (emptied first); ``report`` is given each line a person must see
     about the file itself (it cannot be written, it is written again). Thread-safe: the reader threads of an
     application's stdout and stderr write into one file."""
 
-    def __init__(self, path: Path, report: Callable[[str], None], append: bool = False):
+    def __init__(self, path: Path, report: Callable[[str], None]):
         self.path = path
-        self.lost_total = 0  # lines never written, over the file's life
         self._report = report
         self._lock = threading.Lock()
         self._said: list[str] = []  # lines for report(), said once the lock is released
@@ -41,8 +40,7 @@ class LogFile:
         self._next_try = 0.0
         with self._lock:
             try:
-                self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC
-                                   | (0 if append else os.O_TRUNC), 0o644)
+                self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC | os.O_TRUNC, 0o644)
             except OSError as error:
                 self._fail(error, time.monotonic(), lost=0)
         self._say()
@@ -75,7 +73,6 @@ class LogFile:
     def _write_line(self, text: str, now: float) -> None:
         if self._error and not (now >= self._next_try and self._resume(now)):
             self._lost += 1
-            self.lost_total += 1
             return
         error = self._append((text + "\n").encode())
         if error is not None:
@@ -96,7 +93,6 @@ class LogFile:
     def _fail(self, error: OSError, now: float, lost: int = 1) -> None:
         self._error = error.strerror or str(error)
         self._lost, self._lost_from = lost, time.strftime(CLOCK)
-        self.lost_total += lost
         self._next_try = now + RETRY_S
         self._said.append(f"{self.path}: {self._error}; its lines are not kept until a write succeeds again "
                           f"(tried every {RETRY_S:g} s)")
