@@ -209,11 +209,10 @@ def test_a_full_disk_loses_log_lines_with_a_word_and_never_stops_the_application
     launcher.wait_for(app_line("vision", STEADY["vision"]))
     inside = Path(f"/proc/{launcher.pid}/root{disk}")  # the tmpfs, as the launcher sees it
     filler = inside / "filler"
-    with open(filler, "wb") as stream:
+    with open(filler, "wb", buffering=0) as stream:
         try:
             while True:
                 stream.write(bytes(65536))
-                stream.flush()
         except OSError as error:
             assert "No space left" in str(error), error
     launcher.wait_for(rf"^launch\s+\| {re.escape(str(disk))}/vision\.log: No space left on device; its lines are not "

@@ -61,17 +61,38 @@ class LevelFormatter(logging.Formatter):
 
 
 class ClosedPipeHandler(logging.StreamHandler):  # type: ignore[type-arg]
-    """A stream handler that, when its reader has gone (EPIPE), silences the stream and calls ``on_closed`` once."""
+    """A stream handler that, when its reader has gone (EPIPE), silences the stream and calls ``on_closed`` once.
+
+    Any other failed write (``automotive-vision > vision.log`` on a full disk) is one line on stderr, not logging's
+    traceback for every record; the program goes on, its lines are tried again as they come, and the first one
+    written again says so on stderr."""
 
     def __init__(self, stream: TextIO, on_closed: Callable[[], None] | None = None) -> None:
         super().__init__(stream)
         self.on_closed = on_closed
         self.closed_pipe = False
+        self.unwritten = 0  # records that failed to be written since the last one that was
+        self._failed = False  # the record being emitted failed
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self._failed = False
+        super().emit(record)
+        if self.unwritten and not self._failed:
+            _say_on_stderr(f"{record.name}: standard output written again; {self.unwritten} line(s) before may be "
+                           "missing from it")
+            self.unwritten = 0
 
     def handleError(self, record: logging.LogRecord) -> None:
         error = sys.exc_info()[1]
         if isinstance(error, BrokenPipeError) or (isinstance(error, ValueError) and self.closed_pipe):
             self.reader_gone()
+            return
+        if isinstance(error, OSError):
+            self._failed = True
+            if not self.unwritten:
+                _say_on_stderr(f"{record.name}: standard output: {error.strerror or error}; its lines are lost while "
+                               "it cannot be written")
+            self.unwritten += 1
             return
         super().handleError(record)
 
@@ -82,6 +103,14 @@ class ClosedPipeHandler(logging.StreamHandler):  # type: ignore[type-arg]
         silence_stdout()
         if self.on_closed is not None:
             self.on_closed()
+
+
+def _say_on_stderr(line: str) -> None:
+    try:
+        sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+    except (OSError, ValueError):
+        pass  # stderr cannot be written either: nothing else is left to say it on
 
 
 def silence_stdout() -> None:
