@@ -61,7 +61,7 @@ def test_only_the_cyclone_layer_touches_cyclone_internals(path: Path) -> None:
 
 # The modules that are no program: the tools' shared modules and their rooms' parts, the benchmarks' helpers.
 NOT_PROGRAMS = {"__init__", "children", "flows", "cloudview", "wsrelay", "netlab", "ddsperf", "mcap_recover",
-                "plan", "display", "supervisor", "registry",  # automotive.tools.launch's parts
+                "plan", "display", "supervisor", "registry", "logfile",  # automotive.tools.launch's parts
                 "discovery", "model", "probes", "rules", "server", "text"}  # automotive.tools.monitor's parts
 PROGRAMS = sorted(".".join(["automotive", *path.relative_to(PACKAGE).with_suffix("").parts])
                   for folder in ("apps", "tools", "bench")
