@@ -12,6 +12,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -267,6 +268,16 @@ def test_a_console_nobody_reads_never_stops_the_applications(domain_id: int, tmp
                                 stdout=write_end, stderr=subprocess.STDOUT,
                                 env={**os.environ, "DISPLAY": "", "WAYLAND_DISPLAY": ""})
     os.close(write_end)
+    console = os.fdopen(read_end, "r", errors="replace")
+    lines: list[str] = []
+
+    def read() -> None:
+        for line in console:
+            lines.append(line)
+
+    reader = threading.Thread(target=read, daemon=True)  # started when the test reads the console at last
+    left_out = re.compile(r"^launch\s+\| (\d+) line\(s\) not shown: the console was not read for a while \(the log "
+                          r"files have every line\)$")
     try:
         log = tmp_path / "vision.log"
 
@@ -277,19 +288,20 @@ def test_a_console_nobody_reads_never_stops_the_applications(domain_id: int, tmp
         # Far more lines than the pipe and the console's queue hold (2,000): some are left out, none waits.
         wait_until(lambda: samples_in_log() > 3000, timeout=120, what="vision's 3,000th sample in its log file")
         assert launcher.poll() is None
+        reader.start()  # read at last: the console says what it left out
+        wait_until(lambda: any(left_out.match(line) for line in list(lines)), timeout=60,
+                   what="the console's line of the lines it left out")
         launcher.send_signal(signal.SIGTERM)
-        with os.fdopen(read_end, "r", errors="replace") as console:  # read at last
-            out = console.read()
-        read_end = -1
-        assert launcher.wait(timeout=60) == 0, out[-3000:]
+        assert launcher.wait(timeout=60) == 0, "".join(lines[-50:])
     finally:
         if launcher.poll() is None:
             launcher.kill()
-        if read_end >= 0:
-            os.close(read_end)
-    left_out = re.findall(r"^launch\s+\| (\d+) line\(s\) not shown: the console was not read for a while \(the log "
-                          r"files have every line\)$", out, re.M)
-    assert left_out and sum(map(int, left_out)) > 500, out[-3000:]
+        if reader.ident is not None:  # started: it ends at the launcher's end of output
+            reader.join(timeout=30)
+        console.close()
+    out = "".join(lines)
+    counts = [int(match[1]) for line in lines if (match := left_out.match(line))]
+    assert sum(counts) > 500, out[-3000:]
     assert "vision  pid" in out.split("how each application ended:")[1], out[-3000:]
     assert "Traceback" not in out
 
