@@ -306,6 +306,35 @@ def test_a_console_nobody_reads_never_stops_the_applications(domain_id: int, tmp
     assert "Traceback" not in out
 
 
+def test_a_console_nobody_reads_leaves_out_application_lines_only_and_counts_them(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The console's own queue, with standard output a pipe of 4 KiB nobody reads for a while: of 3,000 application
+    lines some are left out, the count says exactly how many, and the launcher's line (a stop, the summary) is never
+    one of them."""
+    read_end, write_end = os.pipe()
+    fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, 4096)
+    stdout = os.fdopen(write_end, "w")
+    monkeypatch.setattr(sys, "stdout", stdout)
+    console = Console(["vision"], show_apps=True, launcher_log=None)
+    for number in range(3000):
+        console.app_line("vision", f"sample {number}")
+    console.say("how each application ended:")
+    with os.fdopen(read_end, "r") as pipe:
+        lines: list[str] = []
+        reader = threading.Thread(target=lambda: lines.extend(line.rstrip("\n") for line in pipe), daemon=True)
+        reader.start()  # read at last
+        console.close()
+        stdout.close()  # the end of the pipe's output: the reader ends
+        reader.join(timeout=30)
+    shown = [int(line.split("sample ")[1]) for line in lines if line.startswith("vision | sample ")]
+    assert shown == sorted(shown) and len(shown) < 3000, len(shown)
+    notice = (r"launch \| (\d+) line\(s\) not shown: the console was not read for a while "
+              r"\(the log files have every line\)")
+    counts = [int(match[1]) for line in lines if (match := re.fullmatch(notice, line))]
+    assert len(shown) + sum(counts) == 3000, (len(shown), counts)
+    assert re.fullmatch(notice, lines[-2]) and lines[-1] == "launch | how each application ended:", lines[-3:]
+
+
 def test_ctrl_z_does_not_suspend_the_launcher(apps, domain_id: int, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """A suspended launcher reads no more output: its applications would stop once their pipes are full."""
     launcher = launch(apps, domain_id, tmp_path, "vision")

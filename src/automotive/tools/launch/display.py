@@ -6,8 +6,8 @@ background; the choice of mode, and the tmux session that runs the launcher in i
 from __future__ import annotations
 
 import argparse
+import collections
 import os
-import queue
 import re
 import shlex
 import shutil
@@ -37,7 +37,7 @@ DEBUG_LINE_GREP = "^[0-9:.]+ [^ ]+ debug: "
 # Not the HMI's "no alert source" or "no alert state yet": the start of a system is no alert.
 ALERT_LINE = re.compile(r"DRIVER ALERT|ALERT:|all clear|All clear|alert source (lost|LOST)")
 LAUNCHER_LABEL = "launch"
-CONSOLE_QUEUE_LINES = 2000  # lines held for a terminal that is not read, before any is left out
+CONSOLE_QUEUE_LINES = 2000  # lines held for a terminal that is not read, before applications' lines are left out
 CONSOLE_CLOSE_WAIT_S = 5.0  # how long the launcher's end waits for a terminal that is not read
 # The launcher's line once every application is started: what a program driving the launcher waits for.
 RUNNING_LINE = rf"^{LAUNCHER_LABEL}\s+\| \d+ application\(s\) running"
@@ -57,11 +57,13 @@ class Console:
         self.width = max([len(LAUNCHER_LABEL), *map(len, names)])
         self.colours = {name: COLOURS[index % len(COLOURS)] for index, name in enumerate(names)}
         self.show_apps = show_apps
-        self.lock = threading.Lock()  # the queue's order and the count of lines left out
         # The terminal is written by a thread of its own: a terminal paused (Ctrl-S), a pager scrolled back or a stalled
         # ssh session blocks that thread only, never the readers of the applications' output (an application whose
-        # output nobody reads blocks at its next line once its pipe is full, and the alert chain with it).
-        self._lines: queue.Queue[str | None] = queue.Queue(maxsize=CONSOLE_QUEUE_LINES)
+        # output nobody reads blocks at its next line once its pipe is full, and the alert chain with it). Beyond
+        # CONSOLE_QUEUE_LINES waiting, the applications' lines are left out (and counted); the launcher's own, few,
+        # never are.
+        self._waiting: collections.deque[str | None] = collections.deque()
+        self._ready = threading.Condition()
         self._left_out = 0
         self._writer = threading.Thread(target=self._write_lines, name="console", daemon=True)
         self._writer.start()
@@ -75,24 +77,28 @@ class Console:
         code = "1" if name == LAUNCHER_LABEL else str(self.colours.get(name, 37))
         return f"\033[{code}m{label}\033[0m | "
 
-    def _put(self, line: str) -> None:
-        """Queue ``line`` for the terminal; left out (and counted) while the queue is full: the terminal is not read."""
-        with self.lock:
-            try:
-                self._put_left_out()
-                self._lines.put_nowait(line)
-            except queue.Full:
+    def _put(self, line: str | None, may_leave_out: bool = False) -> None:
+        """Queue ``line`` for the terminal (None: the end); one that ``may_leave_out`` is left out (and counted) while
+        CONSOLE_QUEUE_LINES wait: the terminal is not read."""
+        with self._ready:
+            if may_leave_out and len(self._waiting) >= CONSOLE_QUEUE_LINES:
                 self._left_out += 1
-
-    def _put_left_out(self) -> None:
-        """Under the lock: a line that says how many were left out, if any (raises queue.Full)."""
-        if self._left_out:
-            self._lines.put_nowait(self._prefix(LAUNCHER_LABEL) + f"{self._left_out} line(s) not shown: the console "
-                                   "was not read for a while (the log files have every line)")
-            self._left_out = 0
+                return
+            if self._left_out:
+                self._waiting.append(self._prefix(LAUNCHER_LABEL) + f"{self._left_out} line(s) not shown: the console "
+                                     "was not read for a while (the log files have every line)")
+                self._left_out = 0
+            self._waiting.append(line)
+            self._ready.notify()
 
     def _write_lines(self) -> None:
-        while (line := self._lines.get()) is not None:
+        while True:
+            with self._ready:
+                while not self._waiting:
+                    self._ready.wait()
+                line = self._waiting.popleft()
+            if line is None:
+                return
             _write_out(line + "\n")
 
     def app_line(self, name: str, text: str) -> None:
@@ -105,7 +111,7 @@ class Console:
             text = shown
         if ALERT_LINE.search(text):  # an alert must not scroll by unseen among the status lines
             text = f"\033[1;7m{text}\033[0m" if self.colour else f">>> {text}"
-        self._put(self._prefix(name) + text)
+        self._put(self._prefix(name) + text, may_leave_out=True)
 
     def say(self, text: str) -> None:
         self._launcher_line(text)
@@ -119,17 +125,8 @@ class Console:
         """The lines still queued written out, unless the terminal is still not read after CONSOLE_CLOSE_WAIT_S."""
         if self.launcher_log is not None:
             self.launcher_log.close()  # what it says of itself, first
-        try:
-            with self.lock:
-                self._put_left_out()
-        except queue.Full:
-            pass
-        deadline = time.monotonic() + CONSOLE_CLOSE_WAIT_S
-        try:
-            self._lines.put(None, timeout=CONSOLE_CLOSE_WAIT_S)
-        except queue.Full:
-            pass
-        self._writer.join(timeout=max(0.0, deadline - time.monotonic()))
+        self._put(None)  # after the count of lines left out, if any
+        self._writer.join(timeout=CONSOLE_CLOSE_WAIT_S)
 
 
 def _write_out(text: str) -> None:
