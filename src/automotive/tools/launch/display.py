@@ -65,6 +65,10 @@ class Console:
         self._waiting: collections.deque[str | None] = collections.deque()
         self._ready = threading.Condition()
         self._left_out = 0
+        try:
+            sys.stdout.flush()  # what was printed before comes first: the writer bypasses Python's buffer
+        except (OSError, ValueError):
+            pass
         self._writer = threading.Thread(target=self._write_lines, name="console", daemon=True)
         self._writer.start()
         # its own failures are said here only, not written into it
