@@ -15,7 +15,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the tests' helper modules
 
-from domain_ids import worker_domain_ids  # noqa: E402
+from domain_ids import claim_domain_ids, worker_domain_ids  # noqa: E402
 from leftovers import adopt_orphans, descendants, stop_leftovers  # noqa: E402
 
 from automotive import cyclone  # noqa: E402
@@ -37,14 +37,19 @@ adopt_orphans()
 
 # Tests that ask for the `domain_id` fixture each get a domain id of their own (a worker's ids are used again, in turn,
 # once it has run that many such tests; each test's processes are gone by then), except the ids a module's running
-# system holds (module_domain_id) until the module ends.
-_worker_ids = worker_domain_ids(os.environ.get("PYTEST_XDIST_WORKER", "gw0"),
-                                int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))
-_domain_ids = itertools.cycle(_worker_ids)
+# system holds (module_domain_id) until the module ends. A worker claims its ids on this host at its first test
+# (tests/domain_ids.py): xdist's controller, which runs none, claims none.
+_worker_ids: list[int] = []
+_domain_ids: Iterator[int] = iter(())
 _held_domain_ids: set[int] = set()
 
 
 def _next_domain_id() -> int:
+    global _domain_ids
+    if not _worker_ids:
+        _worker_ids.extend(claim_domain_ids(worker_domain_ids(os.environ.get("PYTEST_XDIST_WORKER", "gw0"),
+                                                              int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")))))
+        _domain_ids = itertools.cycle(_worker_ids)
     for _ in _worker_ids:
         candidate = next(_domain_ids)
         if candidate not in _held_domain_ids:

@@ -194,8 +194,8 @@ def take_all(reader: FrameReader, expected: int) -> list[tuple[int, int, bytes, 
 
 
 @pytest.mark.parametrize("zero_copy", [True, False])
-def test_frames_written_either_way_are_taken_intact(zero_copy: bool) -> None:
-    participant = DomainParticipant(76)
+def test_frames_written_either_way_are_taken_intact(zero_copy: bool, domain_id: int) -> None:
+    participant = DomainParticipant(domain_id)
     topic = Topic(participant, f"CameraFrames{zero_copy}", CameraImageData_64KiB)
     qos = Qos(Policy.Reliability.Reliable(10**9), Policy.History.KeepAll)
     reader = FrameReader(DataReader(participant, topic, qos=qos), zero_copy=zero_copy)
@@ -218,8 +218,8 @@ def test_frames_written_either_way_are_taken_intact(zero_copy: bool) -> None:
     participant.__del__()
 
 
-def test_a_zero_copy_frame_cannot_be_used_after_its_block() -> None:
-    participant = DomainParticipant(77)
+def test_a_zero_copy_frame_cannot_be_used_after_its_block(domain_id: int) -> None:
+    participant = DomainParticipant(domain_id)
     topic = Topic(participant, "CameraFrames", CameraImageData_64KiB)
     qos = Qos(Policy.Reliability.Reliable(10**9), Policy.History.KeepAll)
     reader = FrameReader(DataReader(participant, topic, qos=qos))
@@ -262,13 +262,13 @@ def published_total(output: str) -> int:
     return int(counts[-1])
 
 
-def test_camera_pair_verifies_every_frame(apps, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+def test_camera_pair_verifies_every_frame(apps, tmp_path: Path, domain_id: int) -> None:  # type: ignore[no-untyped-def]
     plot = tmp_path / "latency.png"
     frames = 40
-    sub = apps.start("camera_sub", "--domain", "70", "--count", str(frames), "--plot", str(plot),
+    sub = apps.start("camera_sub", "--domain", str(domain_id), "--count", str(frames), "--plot", str(plot),
                      "-D", "config.imageSize=64KiB")
     sub.wait_for("viewing CameraImageData_64KiB frames of 65536 bytes", timeout=TIMEOUT)
-    pub = apps.start("camera_pub", "--domain", "70", "--count", str(frames), "-D", "config.imageSize=64KiB",
+    pub = apps.start("camera_pub", "--domain", str(domain_id), "--count", str(frames), "-D", "config.imageSize=64KiB",
                      "-D", "config.pubInterval=40")  # 1.6 s: at least one once-a-second statistics line
     assert pub.wait_exit(timeout=TIMEOUT) == 0, pub.output
     assert sub.wait_exit(timeout=TIMEOUT) == 0, sub.output
@@ -285,11 +285,11 @@ def test_camera_pair_verifies_every_frame(apps, tmp_path: Path) -> None:  # type
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_full_size_frames_as_fast_as_flow_control_allows(apps) -> None:  # type: ignore[no-untyped-def]
+def test_full_size_frames_as_fast_as_flow_control_allows(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
     frames = 8
-    sub = apps.start("camera_sub", "--domain", "71", "--count", str(frames))
+    sub = apps.start("camera_sub", "--domain", str(domain_id), "--count", str(frames))
     sub.wait_for("viewing CameraImageData frames of 4196352 bytes", timeout=TIMEOUT)
-    pub = apps.start("camera_pub", "--domain", "71", "--count", str(frames), "-D", "config.pubInterval=0")
+    pub = apps.start("camera_pub", "--domain", str(domain_id), "--count", str(frames), "-D", "config.pubInterval=0")
     assert pub.wait_exit(timeout=TIMEOUT) == 0, pub.output
     assert sub.wait_exit(timeout=TIMEOUT) == 0, sub.output
     result = totals(sub.output)
@@ -297,14 +297,14 @@ def test_full_size_frames_as_fast_as_flow_control_allows(apps) -> None:  # type:
         str(frames), "4196352", "0", "0"), sub.output
 
 
-def test_lost_frames_are_counted_as_gaps(apps) -> None:  # type: ignore[no-untyped-def]
+def test_lost_frames_are_counted_as_gaps(apps, domain_id: int) -> None:  # type: ignore[no-untyped-def]
     """Best effort, and the viewer frozen (SIGSTOP) while about 100 MiB go by: its socket buffer must overflow."""
     qos = ["-D", f"qos.File={BEST_EFFORT_QOS}", "-D", "qos.Library=CameraTests",
            "-D", "qos.Camera.Profile=CameraBestEffort", "-D", "config.imageSize=1MiB"]
-    sub = apps.start("camera_sub", "--domain", "72", "--exit-with-publisher", *qos)
+    sub = apps.start("camera_sub", "--domain", str(domain_id), "--exit-with-publisher", *qos)
     sub.wait_for("viewing CameraImageData_1MiB", timeout=TIMEOUT)
     # No --count: a count could run out before the frozen second is over on a loaded machine.
-    pub = apps.start("camera_pub", "--domain", "72", "-D", "config.pubInterval=5", *qos)
+    pub = apps.start("camera_pub", "--domain", str(domain_id), "-D", "config.pubInterval=5", *qos)
     sub.wait_for(r"samples=\d+ size=1048576", timeout=TIMEOUT)  # frames are arriving
     with sub.frozen():
         pub.wait_for_more(r"published \d+ frames:", 2, timeout=TIMEOUT)  # a second or more goes by

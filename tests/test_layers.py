@@ -8,10 +8,12 @@ from __future__ import annotations
 import ast
 import importlib
 import importlib.metadata
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
-from domain_ids import foreign_domain_ids
+from domain_ids import CLAIM_WAIT_S, LEAST_CLAIMED, MOST_CLAIMED, TEST_DOMAIN_IDS, foreign_domain_ids
 
 import automotive
 from automotive import command, start
@@ -122,6 +124,20 @@ def test_no_test_names_a_domain_id_that_conftest_hands_out() -> None:
     """A test's own domain comes from the domain_id fixtures; the few it may name are domain_ids.NAMED_DOMAIN_IDS."""
     found = [line for path in TEST_SOURCES for line in foreign_domain_ids(path)]
     assert not found, "take the domain_id or other_domain_id fixture instead: " + ", ".join(found)
+
+
+@pytest.mark.not_fast
+def test_another_run_on_the_host_never_claims_a_domain_id_this_one_holds(domain_id: int) -> None:
+    """A second test run (here a process of its own, as another clone's worker is) asked for this worker's domain id
+    first gets others: two runs on one domain would hear each other's samples."""
+    code = ("import sys; sys.path.insert(0, sys.argv[1]); from domain_ids import claim_domain_ids; "
+            "print(*claim_domain_ids([int(sys.argv[2])]))")
+    result = subprocess.run([sys.executable, "-c", code, str(TESTS), str(domain_id)], capture_output=True, text=True,
+                            timeout=CLAIM_WAIT_S + 60)
+    assert result.returncode == 0, result.stderr
+    claimed = [int(domain) for domain in result.stdout.split()]
+    assert domain_id not in claimed and LEAST_CLAIMED <= len(claimed) <= MOST_CLAIMED, claimed
+    assert set(claimed) <= set(TEST_DOMAIN_IDS), claimed
 
 
 def test_the_domain_rule_sees_a_named_domain(tmp_path: Path) -> None:
