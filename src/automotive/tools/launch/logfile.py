@@ -19,6 +19,7 @@ from pathlib import Path
 
 RETRY_S = 5.0  # how often a log file that could not be written is tried again
 CLOCK = "%H:%M:%S"
+APPEND = os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC
 
 
 class LogFile:
@@ -40,17 +41,19 @@ class LogFile:
         self._next_try = 0.0
         with self._lock:
             try:
-                self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC | os.O_TRUNC, 0o644)
+                self._fd = os.open(path, APPEND | os.O_TRUNC, 0o644)
             except OSError as error:
                 self._fail(error, time.monotonic(), lost=0)
-        self._say()
+            said = self._take_said()
+        self._report_all(said)
 
     def write(self, text: str) -> None:
         """Append ``text`` as one line, or count it as not written."""
         with self._lock:
             if not self._closed:
                 self._write_line(text, time.monotonic())
-        self._say()
+            said = self._take_said()
+        self._report_all(said)
 
     def close(self, last_line: str | None = None) -> None:
         """Write ``last_line`` (if any; a write is tried for it even before the next retry), close, and say how many
@@ -67,7 +70,8 @@ class LogFile:
             if self._fd is not None:
                 os.close(self._fd)
                 self._fd = None
-        self._say()
+            said = self._take_said()
+        self._report_all(said)
 
     # -- under the lock ------------------------------------------------------------------------------------------
     def _write_line(self, text: str, now: float) -> None:
@@ -102,7 +106,7 @@ class LogFile:
         self._next_try = now + RETRY_S
         if self._fd is None:
             try:
-                self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_APPEND | os.O_CLOEXEC, 0o644)
+                self._fd = os.open(self.path, APPEND, 0o644)
             except OSError:
                 return False
         missing = f"{self._lost} line(s) from {self._lost_from} to {time.strftime(CLOCK)} ({self._error})"
@@ -113,9 +117,12 @@ class LogFile:
         self._error, self._lost, self._partial = "", 0, False
         return True
 
-    def _say(self) -> None:
+    def _take_said(self) -> list[str]:
+        said, self._said = self._said, []
+        return said
+
+    # -- outside it ----------------------------------------------------------------------------------------------
+    def _report_all(self, said: list[str]) -> None:
         """Report what the locked part left to say, outside the lock (a report may write into another log file)."""
-        with self._lock:
-            said, self._said = self._said, []
         for line in said:
             self._report(line)
