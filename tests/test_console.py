@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+import small_disk
 from apprunner import AppRunner
 from dds_helpers import wait_until
 
@@ -97,43 +98,27 @@ def test_a_closed_pipe_ends_an_application_quietly(domain_id: int) -> None:
     assert "Traceback" not in errors and "Logging error" not in errors, errors
 
 
-# An application with its output redirected to a file on a small tmpfs of a mount namespace of its own (the namespace
-# goes with it); the test reaches that tmpfs through /proc/PID/root.
-OUTPUT_ON_A_SMALL_DISK = 'mount -t tmpfs -o size=1m tmpfs "$1" && out="$1/vision.out" && shift && exec "$@" > "$out"'
-
-
 def test_an_output_that_cannot_be_written_is_one_line_and_then_one_when_it_is_again(domain_id: int,
                                                                                    tmp_path: Path) -> None:
     """``automotive-vision -v > vision.out`` on a disk that fills: one line on stderr, not logging's traceback for
     every line; the program goes on, and says so when its output is written again."""
     disk = tmp_path / "disk"
     disk.mkdir()
-    vision = Child("vision-on-a-small-disk", [
-        "unshare", "--mount", "--propagation", "private", "sh", "-c", OUTPUT_ON_A_SMALL_DISK, "small-disk", str(disk),
-        *program_command("vision"), "--domain", str(domain_id), "-v", "-D", "config.pubInterval=20"],
-        env={**os.environ, **quiet_env()}, separate_stderr=True)
+    vision = Child("vision-on-a-small-disk", small_disk.on_small_disk(disk, [
+        *program_command("vision"), "--domain", str(domain_id), "-v", "-D", "config.pubInterval=20"], "vision.out"),
+        env={**os.environ, **quiet_env()}, separate_stderr=True)  # its output into a 1 MB tmpfs
     try:
-        inside = Path(f"/proc/{vision.pid}/root{disk}")
-
-        def samples_in_output() -> int:
-            output = inside / "vision.out"  # (not there before the shell has mounted the tmpfs)
-            text = output.read_text(errors="replace") if output.exists() else ""
-            found = re.findall(r"published sample (\d+):", text)
-            return int(found[-1]) if found else 0
-
-        wait_until(lambda: samples_in_output() >= 3, timeout=30, what="vision's third sample in its output")
-        with open(inside / "filler", "wb", buffering=0) as stream:
-            try:
-                while True:
-                    stream.write(bytes(65536))
-            except OSError as error:
-                assert "No space left" in str(error), error
+        output = small_disk.inside(vision.pid, disk) / "vision.out"
+        wait_until(lambda: small_disk.last_published_sample(output) >= 3, timeout=30,
+                   what="vision's third sample in its output")
+        filler = small_disk.fill(output.parent)
         vision.wait_for("^vision: standard output: No space left on device; its lines are lost while it cannot be "
                         "written$")
-        before = samples_in_output()
-        (inside / "filler").unlink()
+        before = small_disk.last_published_sample(output)
+        filler.unlink()
         vision.wait_for(r"^vision: standard output written again; \d+ line\(s\) before may be missing from it$")
-        wait_until(lambda: samples_in_output() > before, timeout=30, what="a sample written after the disk had room")
+        wait_until(lambda: small_disk.last_published_sample(output) > before, timeout=30,
+                   what="a sample written after the disk had room")
         assert vision.poll() is None
     finally:
         code = vision.stop()

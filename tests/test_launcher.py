@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+import small_disk
 from apprunner import AppRunner, CommandProcess
 from dds_helpers import wait_until
 
@@ -191,11 +192,6 @@ def test_one_ctrl_c_delivered_twice_stops_cleanly_and_a_later_second_one_kills(a
     launcher.wait_for(r"^launch\s+\| vision killed at once on a second Ctrl-C: killed by SIGKILL", timeout=1)
 
 
-# The launcher in a mount namespace of its own, its log folder a small tmpfs mounted there (the namespace goes with the
-# launcher); the test reaches that tmpfs through /proc/PID/root.
-ON_A_SMALL_DISK = 'mount -t tmpfs -o size=1m tmpfs "$1" && shift && exec "$@"'
-
-
 def test_a_full_disk_loses_log_lines_with_a_word_and_never_stops_the_applications(  # type: ignore[no-untyped-def]
         apps, domain_id: int, tmp_path: Path) -> None:
     """An application whose output nobody reads blocks once the pipe is full: a log file that cannot be written must
@@ -203,19 +199,12 @@ def test_a_full_disk_loses_log_lines_with_a_word_and_never_stops_the_application
     room again, the file and the console say how many lines are not in it."""
     disk = tmp_path / "disk"
     disk.mkdir()
-    launcher = apps.start_command("launch", [
-        "unshare", "--mount", "--propagation", "private", "sh", "-c", ON_A_SMALL_DISK, "small-disk", str(disk),
-        *LAUNCH, "--mode", "background", "-v", "--domain", str(domain_id), "--log-dir", str(disk), "vision"],
-        env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+    launcher = apps.start_command("launch", small_disk.on_small_disk(disk, [
+        *LAUNCH, "--mode", "background", "-v", "--domain", str(domain_id), "--log-dir", str(disk), "vision"]),
+        env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})  # its log folder a 1 MB tmpfs
     launcher.wait_for(app_line("vision", STEADY["vision"]))
-    inside = Path(f"/proc/{launcher.pid}/root{disk}")  # the tmpfs, as the launcher sees it
-    filler = inside / "filler"
-    with open(filler, "wb", buffering=0) as stream:
-        try:
-            while True:
-                stream.write(bytes(65536))
-        except OSError as error:
-            assert "No space left" in str(error), error
+    logs = small_disk.inside(launcher.pid, disk)
+    filler = small_disk.fill(logs)
     launcher.wait_for(rf"^launch\s+\| {re.escape(str(disk))}/vision\.log: No space left on device; its lines are not "
                       r"kept until a write succeeds again \(tried every 5 s\)$")
     sample = app_line("vision", r"published sample \d+:")
@@ -228,10 +217,10 @@ def test_a_full_disk_loses_log_lines_with_a_word_and_never_stops_the_application
     lost = int(re.search(r"again; (\d+) line", again).group(1))  # type: ignore[union-attr]
     assert lost >= 3, again
     launcher.wait_for_more(sample, 1)
-    text = (inside / "vision.log").read_text(errors="replace")
+    text = (logs / "vision.log").read_text(errors="replace")
     marker = re.search(rf"^--- not written here: {lost} line\(s\) from .* \(No space left on device\)$", text, re.M)
     assert marker is not None, text[-3000:]
-    wait_until(lambda: "published sample" in (inside / "vision.log").read_text(errors="replace")[marker.end():],
+    wait_until(lambda: "published sample" in (logs / "vision.log").read_text(errors="replace")[marker.end():],
                timeout=30, what="a sample's line in vision.log after its note of the lines not in it")
 
     launcher.process.send_signal(signal.SIGTERM)
@@ -279,14 +268,9 @@ def test_a_console_nobody_reads_never_stops_the_applications(domain_id: int, tmp
     left_out = re.compile(r"^launch\s+\| (\d+) line\(s\) not shown: the console was not read for a while \(the log "
                           r"files have every line\)$")
     try:
-        log = tmp_path / "vision.log"
-
-        def samples_in_log() -> int:
-            found = re.findall(r"published sample (\d+):", log.read_text(errors="replace")) if log.exists() else []
-            return int(found[-1]) if found else 0
-
         # Far more lines than the pipe and the console's queue hold (2,000): some are left out, none waits.
-        wait_until(lambda: samples_in_log() > 3000, timeout=120, what="vision's 3,000th sample in its log file")
+        wait_until(lambda: small_disk.last_published_sample(tmp_path / "vision.log") > 3000, timeout=120,
+                   what="vision's 3,000th sample in its log file")
         assert launcher.poll() is None
         reader.start()  # read at last: the console says what it left out
         wait_until(lambda: any(left_out.match(line) for line in list(lines)), timeout=60,
