@@ -127,6 +127,17 @@ def test_an_output_that_cannot_be_written_is_one_line_and_then_one_when_it_is_ag
     assert len(errors) == 2, errors  # the two lines above, nothing else: no traceback
 
 
+def test_a_program_that_ends_while_its_output_cannot_be_written_ends_with_one_line(domain_id: int) -> None:
+    """``automotive-vision --count 2 > /dev/full``: its end, with the last lines still in the buffer, is exit code 0 and
+    the one line, not Python's "Exception ignored ... OSError" at exit and exit code 120."""
+    with open("/dev/full", "w") as full:
+        result = subprocess.run([*program_command("vision"), "--domain", str(domain_id), "--count", "2"], stdout=full,
+                                stderr=subprocess.PIPE, text=True, env={**os.environ, **quiet_env()}, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stderr == ("vision: standard output: No space left on device; its lines are lost while it cannot be "
+                             "written\n"), result.stderr
+
+
 def test_the_launcher_console_leaves_samples_to_the_log_files(apps: AppRunner, domain_id: int,
                                                               tmp_path: Path) -> None:
     launcher = apps.start_command("launch", [*LAUNCH, "--mode", "background", "--domain", str(domain_id),

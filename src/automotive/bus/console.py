@@ -15,6 +15,7 @@ request.
 
 from __future__ import annotations
 
+import atexit
 import logging
 import os
 import re
@@ -65,7 +66,8 @@ class ClosedPipeHandler(logging.StreamHandler):  # type: ignore[type-arg]
 
     Any other failed write (``automotive-vision > vision.log`` on a full disk) is one line on stderr, not logging's
     traceback for every record; the program goes on, its lines are tried again as they come, and the first one
-    written again says so on stderr."""
+    written again says so on stderr. A program that ends while its output still fails drops what its buffer holds
+    (said already), rather than Python's own error at exit and exit code 120."""
 
     def __init__(self, stream: TextIO, on_closed: Callable[[], None] | None = None) -> None:
         super().__init__(stream)
@@ -81,6 +83,7 @@ class ClosedPipeHandler(logging.StreamHandler):  # type: ignore[type-arg]
             _say_on_stderr(f"{record.name}: standard output written again; {self.unwritten} line(s) before may be "
                            "missing from it")
             self.unwritten = 0
+            atexit.unregister(self._drop_unwritten)
 
     def handleError(self, record: logging.LogRecord) -> None:
         error = sys.exc_info()[1]
@@ -92,9 +95,17 @@ class ClosedPipeHandler(logging.StreamHandler):  # type: ignore[type-arg]
             if not self.unwritten:
                 _say_on_stderr(f"{record.name}: standard output: {error.strerror or error}; its lines are lost while "
                                "it cannot be written")
+                atexit.register(self._drop_unwritten)
             self.unwritten += 1
             return
         super().handleError(record)
+
+    def _drop_unwritten(self) -> None:
+        """At exit, before Python's own flush: the output still cannot take what the buffer holds."""
+        try:
+            self.flush()
+        except (OSError, ValueError):
+            silence_stdout()
 
     def reader_gone(self) -> None:
         if self.closed_pipe:
