@@ -292,11 +292,19 @@ def test_a_console_nobody_reads_never_stops_the_applications(domain_id: int, tmp
 
 def test_a_console_nobody_reads_leaves_out_application_lines_only_and_counts_them(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """The console's own queue, with standard output a pipe of 4 KiB nobody reads for a while: of 3,000 application
-    lines some are left out, the count says exactly how many, and the launcher's line (a stop, the summary) is never
-    one of them."""
+    """The console's own queue, with standard output a pipe nobody reads for a while, full before the console writes
+    (so that its writer waits from its first line, however the threads are scheduled): of 3,000 application lines
+    some are left out, the count says exactly how many, and the launcher's line (a stop, the summary) is never one of
+    them."""
     read_end, write_end = os.pipe()
     fcntl.fcntl(write_end, fcntl.F_SETPIPE_SZ, 4096)
+    os.set_blocking(write_end, False)
+    try:
+        while True:
+            os.write(write_end, b"\n" * 512)  # empty lines, left out below
+    except BlockingIOError:
+        pass
+    os.set_blocking(write_end, True)
     stdout = os.fdopen(write_end, "w")
     monkeypatch.setattr(sys, "stdout", stdout)
     console = Console(["vision"], show_apps=True, launcher_log=None)
@@ -305,7 +313,8 @@ def test_a_console_nobody_reads_leaves_out_application_lines_only_and_counts_the
     console.say("how each application ended:")
     with os.fdopen(read_end, "r") as pipe:
         lines: list[str] = []
-        reader = threading.Thread(target=lambda: lines.extend(line.rstrip("\n") for line in pipe), daemon=True)
+        reader = threading.Thread(target=lambda: lines.extend(text for line in pipe if (text := line.rstrip("\n"))),
+                                  daemon=True)
         reader.start()  # read at last
         console.close()
         stdout.close()  # the end of the pipe's output: the reader ends
