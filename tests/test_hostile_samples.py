@@ -20,14 +20,13 @@ import re
 import struct
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Qos
-from dds_helpers import wait_until
+from dds_helpers import wait_until, write_until
 from fastdds_peer import FastDdsPeer
 from lidar_helpers import Clouds, circle, points_of
 from mcap.reader import make_reader
@@ -111,16 +110,6 @@ def not_utf8(sample: Any, text: str, replacement: bytes) -> bytes:
 
 def matched(writer: DataWriter[Any], readers: int = 1) -> None:
     wait_until(lambda: len(matched_subscriptions(writer)) >= readers, TIMEOUT, "the application's reader")
-
-
-def write_until(process: Any, pattern: str, write: Callable[[], Any]) -> None:
-    """Write (every 20 ms) until the application printed ``pattern``. A writer that matched a reader may not be known
-    to that reader yet (discovery is not symmetric): a best-effort sample written then is lost."""
-    def seen() -> bool:
-        write()
-        return process.count(pattern) > 0
-
-    wait_until(seen, TIMEOUT, f"/{pattern}/ in the output of {process.name}")
 
 
 def stop_and_check(process: Any, once: list[str]) -> str:
@@ -418,7 +407,9 @@ def test_record_and_replay_move_hostile_samples_unharmed(apps, domain_id: int, b
     for index in range(BURST):
         commands.write(command(100 + index, speed=math.nan))
     commands.write(command(42))
-    circles.write(bad_circle)  # recorded as received (reliable)
+    # Written once, so only once the recorder's reader (best effort, as Shapes Demo's) has matched our writer itself.
+    record.wait_for(r"\[Circle\] reader matched a writer", TIMEOUT)
+    circles.write(bad_circle)  # recorded as received
     record.wait_for(r"recorded=\d+ .* PlatformControl=\d+/.* Circle=1/", TIMEOUT)
     circles.dispose(bad_circle)  # then a disposal, whose key the recorder cannot turn into a sample
     record.wait_for(r"\[Circle\] bad sample ignored: undecodable \(UnicodeDecodeError", TIMEOUT)
@@ -486,8 +477,8 @@ def test_bridge_forwards_on_past_hostile_samples(apps, domain_id: int, bus: Data
     bad_circle = not_utf8(ShapeType(color="BAD", x=120, y=135, shapesize=2**31 - 1), "BAD", b"\xff\xfe\xfd")
     write_until(bridge, r"forwarded .*PlatformControl=[1-9]", lambda: commands.write(command(0, speed=math.inf)))
     # Written once, so only once the bridge knows its writer: discovery is not symmetric (our writer matched first),
-    # and a sample written before the bridge's reader has matched is lost (seen once in a loaded suite). The bridge
-    # forwarding PlatformControl shows it has our writers: their announcements come in order, the circles' first.
+    # and a sample written before the bridge's reader has matched is lost (seen once in a loaded suite).
+    bridge.wait_for(r"\[Circle\] reader matched a writer", TIMEOUT)
     circles.write(bad_circle)
     for index in range(BURST):
         commands.write(command(index, speed=math.inf))
