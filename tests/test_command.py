@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 from apprunner import DEFAULT_SIGINT, signal_state
+from test_launcher import pids_started
 
 from automotive import command
 from automotive.bus.version import DISTRIBUTION
@@ -156,14 +157,9 @@ def test_a_launcher_stopped_while_its_applications_start_ends_cleanly(tmp_path: 
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                env={**os.environ, "DISPLAY": "", "WAYLAND_DISPLAY": ""})
     assert process.stdout is not None
-    pids = []
-    for line in process.stdout:
-        if "started " in line and "(pid " in line:
-            pids.append(int(line.split("(pid ")[1].split(")")[0]))
-        if "application(s) running" in line:
-            break
-    assert len(pids) == 2, pids
-    for pid in pids:  # each application's entry handles SIGTERM (it is importing, or already running)
+    pids = pids_started(process.stdout)
+    assert sorted(pids) == ["hmi", "vision"], pids
+    for pid in pids.values():  # each application's entry handles SIGTERM (it is importing, or already running)
         assert wait_until_handled(pid, signal.SIGTERM, 30), f"pid {pid} never handled SIGTERM"
     process.send_signal(signal.SIGTERM)
     out, _ = process.communicate(timeout=60)
@@ -189,13 +185,8 @@ def test_a_launcher_stopped_before_its_applications_handle_sigterm_lets_them_end
                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                                env={**os.environ, "PYTHONPATH": path, "DISPLAY": "", "WAYLAND_DISPLAY": ""})
     assert process.stdout is not None
-    pid = None
-    for line in process.stdout:
-        if "started vision (pid " in line:
-            pid = int(line.split("(pid ")[1].split(")")[0])
-        if "application(s) running" in line:
-            break
-    assert pid is not None and not handles_signal(pid, signal.SIGTERM)  # still in its sitecustomize
+    pid = pids_started(process.stdout)["vision"]
+    assert not handles_signal(pid, signal.SIGTERM)  # still in its sitecustomize
     process.send_signal(signal.SIGTERM)
     out, _ = process.communicate(timeout=60)
     assert process.returncode == 0, out

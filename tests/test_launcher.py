@@ -14,6 +14,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterable
 from pathlib import Path
 
 import pytest
@@ -69,7 +70,19 @@ def launch(apps: AppRunner, domain_id: int, log_dir: Path, *args: str,
 
 def started_pids(launcher: CommandProcess) -> dict[str, int]:
     launcher.wait_for(r"application\(s\) running")
-    return {match.group(1): int(match.group(2)) for line in launcher.lines if (match := STARTED.match(line))}
+    return pids_started(launcher.lines)
+
+
+def pids_started(lines: Iterable[str]) -> dict[str, int]:
+    """Each application's pid from the launcher's "started NAME (pid N)" lines, read up to "application(s) running"
+    (which comes once all started): a pipe's lines are read no further."""
+    pids: dict[str, int] = {}
+    for line in lines:
+        if match := STARTED.match(line):
+            pids[match.group(1)] = int(match.group(2))
+        if "application(s) running" in line:
+            break
+    return pids
 
 
 alive = children.alive  # the process exists and is not a zombie
