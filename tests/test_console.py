@@ -7,21 +7,27 @@ from __future__ import annotations
 import io
 import logging
 import os
+import pty
 import re
+import signal
 import subprocess
 import sys
+import termios
+import threading
 import time
 from pathlib import Path
 
 import pytest
 import small_disk
 from apprunner import AppRunner
-from dds_helpers import wait_until
+from dds_helpers import take_samples, wait_until
 
 from automotive.apps.hmi import AlertView, ConsoleUI, Shown
 from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE, LevelFormatter
+from automotive.bus.endpoints import Databus
 from automotive.tools.launch.display import Console
 from automotive.tools.support.children import STDERR, Child, program_command
+from automotive.types.Vision import VisionSensor
 
 # As scripts/launch starts it: through automotive.start (its import, its signals).
 LAUNCH = program_command("launch")
@@ -231,3 +237,85 @@ def test_the_launcher_console_cuts_a_sample_record_glued_to_another_writers_line
     console.close()  # its lines written out
     shown = [line.split(" | ", 1)[1] for line in capsys.readouterr().out.splitlines()]
     assert shown == ["partial text of another writer", "12:00:01.300 hmi: status: in AlertTopic 10/s", ""]
+
+
+class PausedTerminal:
+    """A pseudo-terminal whose output is suspended as Ctrl-S suspends a terminal's (tcflow TCOOFF): a program writing
+    to it blocks at once, as behind a paused terminal or a stalled ssh session."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = pty.openpty()
+        termios.tcflow(self.slave, termios.TCOOFF)
+        self.lines: list[str] = []
+        self._reader: threading.Thread | None = None
+
+    def resume(self) -> None:
+        """Ctrl-Q, and read from then on."""
+        termios.tcflow(self.slave, termios.TCOON)
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        pending = b""
+        while True:
+            try:
+                data = os.read(self.master, 65536)
+            except OSError:  # EIO: every program on the terminal has ended
+                return
+            if not data:
+                return
+            pending += data
+            *complete, pending = pending.split(b"\r\n")
+            self.lines.extend(line.decode(errors="replace") for line in complete)
+
+    def close(self) -> None:
+        os.close(self.slave)  # the terminal's end for the reader (EIO) once the program's copy is closed too
+        if self._reader is not None:
+            self._reader.join(timeout=30)
+        os.close(self.master)
+
+
+def test_a_paused_terminal_never_stops_an_application(domain_id: int, bus: Databus) -> None:
+    """``automotive-vision -v`` in a terminal paused with Ctrl-S: the program goes on publishing (its terminal is
+    written by a thread of its own), holds up to 2,000 lines, and once the terminal is read again says how many it
+    left out; its end is clean."""
+    reader = bus.reader("VisionTopic", VisionSensor, "SensorFusion")
+    terminal = PausedTerminal()
+    vision = subprocess.Popen([*program_command("vision"), "--domain", str(domain_id), "-v",
+                               "-D", "config.pubInterval=2"],  # 500 lines a second
+                              stdout=terminal.slave, stderr=subprocess.PIPE, text=True,
+                              env={**os.environ, **quiet_env()})
+    try:
+        # Before, its first line blocked the program, and with it every sample.
+        assert len(take_samples(reader, 3000, timeout=60)) >= 3000, "vision stopped behind its paused terminal"
+        assert vision.poll() is None
+        terminal.resume()
+        left_out = re.compile(r"^vision: (\d+) line\(s\) not shown: the terminal was not read for a while$")
+        wait_until(lambda: any(left_out.match(line) for line in list(terminal.lines)), timeout=60,
+                   what="vision's line of the lines it left out")
+        vision.send_signal(signal.SIGTERM)
+        assert vision.wait(timeout=60) == 0
+    finally:
+        if vision.poll() is None:
+            vision.kill()
+        terminal.close()
+    assert vision.stderr is not None
+    errors = vision.stderr.read()
+    assert errors == "", errors
+    published = [int(match[1]) for line in terminal.lines if (match := re.search(r"published sample (\d+):", line))]
+    assert published == sorted(published) and len(published) > 2000, len(published)  # in order, the held ones first
+
+
+def test_a_program_ends_within_5_s_of_its_end_when_its_terminal_stays_paused(domain_id: int) -> None:
+    """``automotive-vision --count 20 -v`` in a terminal paused all along: it does not wait for ever to write its last
+    lines (before, its first line blocked it for good), and Python's end beside the blocked writer is clean."""
+    terminal = PausedTerminal()
+    started = time.monotonic()
+    try:
+        result = subprocess.run([*program_command("vision"), "--domain", str(domain_id), "-v", "--count", "20",
+                                 "-D", "config.pubInterval=10"], stdout=terminal.slave, stderr=subprocess.PIPE,
+                                text=True, env={**os.environ, **quiet_env()}, timeout=120)
+    finally:
+        terminal.close()
+    assert result.returncode == 0 and result.stderr == "", result.stderr
+    assert time.monotonic() - started < 60

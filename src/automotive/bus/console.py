@@ -9,6 +9,9 @@ request.
   can tell them apart.
 - A closed standard output (``automotive-vision | head -5``) ends the program quietly: the first write that fails
   points stdout at /dev/null and calls the program's stop, instead of a "Logging error" traceback per later line.
+- A terminal is written by a thread of its own (:class:`OutputQueue`): a terminal paused with Ctrl-S or a stalled
+  ssh session holds that thread only, never the program's readers and writers (a recorder that stopped taking would
+  hold back the camera for every reader). The launcher's console uses the same queue.
 - :class:`Traffic`: samples in and out per topic, counted where every sample passes (the runtime's checked readers
   and writers, and the raw paths that bypass them), for the status line.
 """
@@ -16,6 +19,7 @@ request.
 from __future__ import annotations
 
 import atexit
+import collections
 import logging
 import os
 import re
@@ -23,7 +27,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from typing import TextIO
+from typing import Generic, TextIO, TypeVar, cast
 
 LOG_LEVEL_VARIABLE = "AUTOMOTIVE_LOG_LEVEL"
 STATUS_INTERVAL_S = 5.0  # the status line's period (config.statusInterval)
@@ -32,6 +36,10 @@ TIME_FORMAT = "%H:%M:%S"
 # The level names a line carries after the program's name (INFO carries none: it is most lines).
 LEVEL_TAGS = {logging.DEBUG: " debug", logging.INFO: "", logging.WARNING: " WARNING", logging.ERROR: " ERROR",
               logging.CRITICAL: " CRITICAL"}
+# A program's terminal (stdout a tty): how many lines may wait for it before those below WARNING are left out (and
+# counted), and how long the program's end waits for a terminal that is not read.
+TERMINAL_QUEUE_LINES = 2000
+TERMINAL_CLOSE_WAIT_S = 5.0
 # How a reader of the output recognises a DEBUG line: ``12:00:01.234 vision debug: ...``.
 DEBUG_LINE_PATTERN = r"^\d\d:\d\d:\d\d\.\d{3} \S+ debug: "
 # A DEBUG record wherever it starts in a line: glued to the text of another writer of the same output that left its
@@ -134,6 +142,118 @@ def silence_stdout() -> None:
         pass
 
 
+Item = TypeVar("Item")
+
+
+class OutputQueue(Generic[Item]):
+    """Items for an output that may block (a terminal paused with Ctrl-S, a stalled ssh session, a pager scrolled
+    back), written by a thread of its own: such an output holds that thread only, never the threads that say
+    something (a DDS listener, a reader of an application's output). Beyond ``limit`` items waiting, those that may be
+    left out are, and counted; ``notice(count)`` is the item that says so, queued once there is room again.
+
+    logging.handlers' QueueHandler and QueueListener hand records over the same way, but neither leaves any out nor
+    ends within a bound (QueueListener.stop waits for a blocked output for ever)."""
+
+    def __init__(self, write: Callable[[Item], object], notice: Callable[[int], Item], limit: int, name: str) -> None:
+        self._write = write
+        self._notice = notice
+        self._limit = limit
+        self._waiting: collections.deque[Item] = collections.deque()
+        self._ready = threading.Condition()
+        self._left_out = 0
+        self._closing = False
+        self._writer = threading.Thread(target=self._write_items, name=name, daemon=True)
+        self._writer.start()
+
+    def put(self, item: Item, may_leave_out: bool = True) -> None:
+        with self._ready:
+            if may_leave_out and len(self._waiting) >= self._limit:
+                self._left_out += 1
+                return
+            self._say_left_out()
+            self._waiting.append(item)
+            self._ready.notify()
+
+    def _say_left_out(self) -> None:
+        if self._left_out:
+            self._waiting.append(self._notice(self._left_out))
+            self._left_out = 0
+
+    def _write_items(self) -> None:
+        while True:
+            with self._ready:
+                while not self._waiting and not self._closing:
+                    self._ready.wait()
+                if not self._waiting:
+                    return
+                item = self._waiting.popleft()
+            self._write(item)
+
+    def close(self, wait_s: float) -> None:
+        """The items still queued written out (the count of those left out last), unless the output still blocks
+        after ``wait_s`` seconds."""
+        with self._ready:
+            self._say_left_out()
+            self._closing = True
+            self._ready.notify()
+        self._writer.join(timeout=wait_s)
+
+
+class DescriptorStream:
+    """Text written straight to a file descriptor, whole, without Python's buffer: a write that blocks holds none of
+    Python's locks (an interpreter ending beside a blocked sys.stdout would fail "could not acquire lock")."""
+
+    def __init__(self, descriptor: int) -> None:
+        self.descriptor = descriptor
+
+    def write(self, text: str) -> int:
+        data = text.encode(errors="replace")
+        while data:
+            data = data[os.write(self.descriptor, data):]
+        return len(text)
+
+    def flush(self) -> None:
+        pass
+
+
+class TerminalHandler(logging.Handler):
+    """A program's log records for its terminal: formatted here, written by an :class:`OutputQueue`'s thread through
+    ``target`` (which says what fails to be written). WARNING and above are never left out."""
+
+    def __init__(self, target: ClosedPipeHandler, name: str) -> None:
+        super().__init__()
+        self.target = target
+        self.program = name
+        # target.emit, not handle: the queue's one thread is its only caller, and a write blocked in it then holds no
+        # handler lock for logging's shutdown at exit to wait on for ever
+        self.lines: OutputQueue[logging.LogRecord] = OutputQueue(target.emit, self._left_out, TERMINAL_QUEUE_LINES,
+                                                                 "terminal")
+        atexit.register(self.lines.close, TERMINAL_CLOSE_WAIT_S)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = self.format(record)
+        except Exception:
+            self.handleError(record)
+            return
+        self.lines.put(self._line(text), may_leave_out=record.levelno < logging.WARNING)
+
+    def put_line(self, text: str) -> None:
+        self.lines.put(self._line(text))
+
+    def setStream(self, stream: TextIO) -> None:  # noqa: N802  # logging.StreamHandler's name, which callers look for
+        """Write to ``stream``'s descriptor from now on (StreamHandler's method, for a caller that moves every handler
+        off descriptor 1, as the Zenoh bridge does to read Zenoh's own log there)."""
+        self.target.setStream(cast(TextIO, DescriptorStream(stream.fileno())))
+
+    def _line(self, text: str) -> logging.LogRecord:
+        """A record whose message is the whole line, as ``target`` writes it."""
+        return logging.makeLogRecord({"name": self.program, "msg": text, "levelno": logging.INFO})
+
+    def _left_out(self, count: int) -> logging.LogRecord:
+        return self._line(f"{self.program}: {count} line(s) not shown: the terminal was not read for a while")
+
+
 def level_from(verbose: bool) -> int:
     """DEBUG with ``-v``; else ``AUTOMOTIVE_LOG_LEVEL`` (debug, info, warning); else INFO."""
     if verbose:
@@ -144,10 +264,17 @@ def level_from(verbose: bool) -> int:
 def setup_logging(name: str, verbose: bool = False, on_closed: Callable[[], None] | None = None) -> logging.Logger:
     """The program's logger ``name`` on stdout, line-buffered (a launcher or a test reading a pipe sees each line at
     once); ``on_closed`` is called once if stdout's reader goes away."""
+    global _terminal
     if hasattr(sys.stdout, "reconfigure"):
         sys.stdout.reconfigure(line_buffering=True)
     skip_unused_record_fields()
-    handler = ClosedPipeHandler(sys.stdout, on_closed)
+    handler: logging.Handler
+    if _on_terminal():
+        sys.stdout.flush()  # what was printed before comes first: the queue's writer bypasses Python's buffer
+        stream = cast(TextIO, DescriptorStream(sys.stdout.fileno()))  # what StreamHandler uses of one: write, flush
+        handler = _terminal = TerminalHandler(ClosedPipeHandler(stream, on_closed), name)
+    else:
+        handler = ClosedPipeHandler(sys.stdout, on_closed)
     handler.setFormatter(LevelFormatter())
     log = logging.getLogger(name)
     log.handlers[:] = [handler]
@@ -173,17 +300,26 @@ def without_debug_record(text: str) -> str:
     return text if record is None else text[:record.start()]
 
 
+_terminal: TerminalHandler | None = None  # the program's, when its stdout is a terminal
+
+
+def _on_terminal() -> bool:
+    try:
+        return sys.stdout.isatty()
+    except (OSError, ValueError):
+        return False
+
+
 def write_line(text: str) -> None:
     """``text`` and its newline on stdout in one write, flushed: print() writes them apart, and a log record of another
     thread (the status line, a listener's match) landing between them would be glued to the text, one line of two
     that a reader of the output (the launcher's console filter, a test's pattern) no longer tells apart. A log record
-    is one write already (logging.StreamHandler)."""
+    is one write already (logging.StreamHandler). On a terminal, in turn with the log records (TerminalHandler)."""
+    if _terminal is not None:
+        _terminal.put_line(text)
+        return
     sys.stdout.write(text + "\n")
     sys.stdout.flush()
-
-
-def closed_pipe_handler(log: logging.Logger) -> ClosedPipeHandler | None:
-    return next((handler for handler in log.handlers if isinstance(handler, ClosedPipeHandler)), None)
 
 
 class Traffic:

@@ -6,20 +6,18 @@ background; the choice of mode, and the tmux session that runs the launcher in i
 from __future__ import annotations
 
 import argparse
-import collections
 import os
 import re
 import shlex
 import shutil
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from automotive.bus.console import without_debug_record
+from automotive.bus.console import DescriptorStream, OutputQueue, without_debug_record
 from automotive.tools.launch import plan
 from automotive.tools.launch.logfile import LogFile
 from automotive.tools.launch.plan import LaunchError
@@ -57,20 +55,16 @@ class Console:
         self.width = max([len(LAUNCHER_LABEL), *map(len, names)])
         self.colours = {name: COLOURS[index % len(COLOURS)] for index, name in enumerate(names)}
         self.show_apps = show_apps
-        # The terminal is written by a thread of its own: a terminal paused (Ctrl-S), a pager scrolled back or a stalled
-        # ssh session blocks that thread only, never the readers of the applications' output (an application whose
-        # output nobody reads blocks at its next line once its pipe is full, and the alert chain with it). Beyond
-        # CONSOLE_QUEUE_LINES waiting, the applications' lines are left out (and counted); the launcher's own, few,
-        # never are.
-        self._waiting: collections.deque[str | None] = collections.deque()
-        self._ready = threading.Condition()
-        self._left_out = 0
+        # The terminal is written by a thread of its own (an OutputQueue): a terminal paused (Ctrl-S), a pager
+        # scrolled back or a stalled ssh session blocks that thread only, never the readers of the applications'
+        # output (an application whose output nobody reads blocks at its next line once its pipe is full, and the
+        # alert chain with it). Beyond CONSOLE_QUEUE_LINES waiting, the applications' lines are left out (and
+        # counted); the launcher's own, few, never are.
         try:
             sys.stdout.flush()  # what was printed before comes first: the writer bypasses Python's buffer
         except (OSError, ValueError):
             pass
-        self._writer = threading.Thread(target=self._write_lines, name="console", daemon=True)
-        self._writer.start()
+        self._lines: OutputQueue[str] = OutputQueue(_write_out, self._left_out, CONSOLE_QUEUE_LINES, "console")
         # its own failures are said here only, not written into it
         self.launcher_log = LogFile(launcher_log, self._launcher_line) if launcher_log else None
 
@@ -81,29 +75,9 @@ class Console:
         code = "1" if name == LAUNCHER_LABEL else str(self.colours.get(name, 37))
         return f"\033[{code}m{label}\033[0m | "
 
-    def _put(self, line: str | None, may_leave_out: bool = False) -> None:
-        """Queue ``line`` for the terminal (None: the end); one that ``may_leave_out`` is left out (and counted) while
-        CONSOLE_QUEUE_LINES wait: the terminal is not read."""
-        with self._ready:
-            if may_leave_out and len(self._waiting) >= CONSOLE_QUEUE_LINES:
-                self._left_out += 1
-                return
-            if self._left_out:
-                self._waiting.append(self._prefix(LAUNCHER_LABEL) + f"{self._left_out} line(s) not shown: the console "
-                                     "was not read for a while (the log files have every line)")
-                self._left_out = 0
-            self._waiting.append(line)
-            self._ready.notify()
-
-    def _write_lines(self) -> None:
-        while True:
-            with self._ready:
-                while not self._waiting:
-                    self._ready.wait()
-                line = self._waiting.popleft()
-            if line is None:
-                return
-            _write_out(line + "\n")
+    def _left_out(self, count: int) -> str:
+        return (self._prefix(LAUNCHER_LABEL) + f"{count} line(s) not shown: the console was not read for a while (the "
+                "log files have every line)")
 
     def app_line(self, name: str, text: str) -> None:
         if not self.show_apps:
@@ -115,7 +89,7 @@ class Console:
             text = shown
         if ALERT_LINE.search(text):  # an alert must not scroll by unseen among the status lines
             text = f"\033[1;7m{text}\033[0m" if self.colour else f">>> {text}"
-        self._put(self._prefix(name) + text, may_leave_out=True)
+        self._lines.put(self._prefix(name) + text)
 
     def say(self, text: str) -> None:
         self._launcher_line(text)
@@ -123,29 +97,27 @@ class Console:
             self.launcher_log.write(time.strftime("%H:%M:%S ") + text)
 
     def _launcher_line(self, text: str) -> None:
-        self._put(self._prefix(LAUNCHER_LABEL) + text)
+        self._lines.put(self._prefix(LAUNCHER_LABEL) + text, may_leave_out=False)
 
     def close(self) -> None:
         """The lines still queued written out, unless the terminal is still not read after CONSOLE_CLOSE_WAIT_S."""
         if self.launcher_log is not None:
             self.launcher_log.close()  # what it says of itself, first
-        self._put(None)  # after the count of lines left out, if any
-        self._writer.join(timeout=CONSOLE_CLOSE_WAIT_S)
+        self._lines.close(CONSOLE_CLOSE_WAIT_S)
 
 
-def _write_out(text: str) -> None:
-    """``text`` on standard output, written at once. Through its file descriptor when it has one: a write that blocks
-    holds none of Python's locks then, and an interpreter ending meanwhile (the thread is a daemon) does not wait."""
+def _write_out(line: str) -> None:
+    """``line`` and its newline on standard output, written at once. Through its file descriptor when it has one
+    (DescriptorStream): a write that blocks holds none of Python's locks then, and an interpreter ending meanwhile (the
+    thread is a daemon) does not wait."""
     try:
         try:
             descriptor = sys.stdout.fileno()
         except (OSError, ValueError):  # a stream without one (a test's capture)
-            sys.stdout.write(text)
+            sys.stdout.write(line + "\n")
             sys.stdout.flush()
             return
-        data = text.encode(errors="replace")
-        while data:
-            data = data[os.write(descriptor, data):]
+        DescriptorStream(descriptor).write(line + "\n")
     except (OSError, ValueError):
         pass  # nobody reads our output any more (a closed pipe, a terminal gone): the log files still have it
 
