@@ -21,6 +21,7 @@ import pytest
 import small_disk
 from apprunner import AppRunner
 from dds_helpers import take_samples, wait_until
+from mcap.reader import make_reader
 
 from automotive.apps.hmi import AlertView, ConsoleUI, Shown
 from automotive.bus.console import DEBUG_LINE_PATTERN, LOG_LEVEL_VARIABLE, LevelFormatter
@@ -319,3 +320,30 @@ def test_a_program_ends_within_5_s_of_its_end_when_its_terminal_stays_paused(dom
         terminal.close()
     assert result.returncode == 0 and result.stderr == "", result.stderr
     assert time.monotonic() - started < 60
+
+
+def test_a_recorder_behind_a_paused_terminal_never_holds_the_camera_back(domain_id: int, tmp_path: Path) -> None:
+    """``automotive record -v`` in a paused terminal: the camera's flow is reliable and keeps every frame for it, so
+    a recorder stopped at its next line held the camera back for every reader (before: 150 frames not sent in 120 s).
+    It records them all."""
+    recording = tmp_path / "camera.mcap"
+    terminal = PausedTerminal()
+    recorder = subprocess.Popen([*program_command("record"), "--domain", str(domain_id), "-v", "--output",
+                                 str(recording), "--topics", "CameraImageData"], stdout=terminal.slave,
+                                stderr=subprocess.PIPE, text=True, env={**os.environ, **quiet_env()})
+    try:
+        camera = subprocess.run([*program_command("camera_pub"), "--domain", str(domain_id), "--count", "150",
+                                 "-D", "config.pubInterval=20", "-D", "config.waitSubscribers=1"],
+                                capture_output=True, text=True, env={**os.environ, **quiet_env()}, timeout=120)
+        assert camera.returncode == 0, camera.stdout[-3000:] + camera.stderr
+        recorder.send_signal(signal.SIGINT)
+        assert recorder.wait(timeout=60) == 0
+    finally:
+        if recorder.poll() is None:
+            recorder.kill()
+        terminal.close()
+    assert recorder.stderr is not None and recorder.stderr.read() == ""
+    with recording.open("rb") as file:
+        summary = make_reader(file).get_summary()
+    assert summary is not None and summary.statistics is not None
+    assert summary.statistics.message_count == 150
