@@ -269,6 +269,19 @@ class PausedTerminal:
             *complete, pending = pending.split(b"\r\n")
             self.lines.extend(line.decode(errors="replace") for line in complete)
 
+    def start(self, command: list[str]) -> subprocess.Popen[str]:
+        """``command`` with this terminal as its standard output, its standard error a pipe, in a user's environment."""
+        return subprocess.Popen(command, stdout=self.slave, stderr=subprocess.PIPE, text=True,
+                                env={**os.environ, **quiet_env()})
+
+    def end(self, process: subprocess.Popen[str]) -> str:
+        """``process`` killed if it still runs, the terminal closed; what the process wrote on standard error."""
+        if process.poll() is None:
+            process.kill()
+        self.close()
+        assert process.stderr is not None
+        return process.stderr.read()
+
     def close(self) -> None:
         os.close(self.slave)  # the terminal's end for the reader (EIO) once the program's copy is closed too
         if self._reader is not None:
@@ -282,10 +295,8 @@ def test_a_paused_terminal_never_stops_an_application(domain_id: int, bus: Datab
     left out; its end is clean."""
     reader = bus.reader("VisionTopic", VisionSensor, "SensorFusion")
     terminal = PausedTerminal()
-    vision = subprocess.Popen([*program_command("vision"), "--domain", str(domain_id), "-v",
-                               "-D", "config.pubInterval=2"],  # 500 lines a second
-                              stdout=terminal.slave, stderr=subprocess.PIPE, text=True,
-                              env={**os.environ, **quiet_env()})
+    vision = terminal.start([*program_command("vision"), "--domain", str(domain_id), "-v",
+                             "-D", "config.pubInterval=2"])  # 500 lines a second
     try:
         # Before, its first line blocked the program, and with it every sample.
         assert len(take_samples(reader, 3000, timeout=60)) >= 3000, "vision stopped behind its paused terminal"
@@ -297,11 +308,7 @@ def test_a_paused_terminal_never_stops_an_application(domain_id: int, bus: Datab
         vision.send_signal(signal.SIGTERM)
         assert vision.wait(timeout=60) == 0
     finally:
-        if vision.poll() is None:
-            vision.kill()
-        terminal.close()
-    assert vision.stderr is not None
-    errors = vision.stderr.read()
+        errors = terminal.end(vision)
     assert errors == "", errors
     published = [int(match[1]) for line in terminal.lines if (match := re.search(r"published sample (\d+):", line))]
     assert published == sorted(published) and len(published) > 2000, len(published)  # in order, the held ones first
@@ -312,13 +319,13 @@ def test_a_program_ends_within_5_s_of_its_end_when_its_terminal_stays_paused(dom
     lines (before, its first line blocked it for good), and Python's end beside the blocked writer is clean."""
     terminal = PausedTerminal()
     started = time.monotonic()
+    vision = terminal.start([*program_command("vision"), "--domain", str(domain_id), "-v", "--count", "20",
+                             "-D", "config.pubInterval=10"])
     try:
-        result = subprocess.run([*program_command("vision"), "--domain", str(domain_id), "-v", "--count", "20",
-                                 "-D", "config.pubInterval=10"], stdout=terminal.slave, stderr=subprocess.PIPE,
-                                text=True, env={**os.environ, **quiet_env()}, timeout=120)
+        code = vision.wait(timeout=120)
     finally:
-        terminal.close()
-    assert result.returncode == 0 and result.stderr == "", result.stderr
+        errors = terminal.end(vision)
+    assert code == 0 and errors == "", errors
     assert time.monotonic() - started < 60
 
 
@@ -328,9 +335,8 @@ def test_a_recorder_behind_a_paused_terminal_never_holds_the_camera_back(domain_
     It records them all."""
     recording = tmp_path / "camera.mcap"
     terminal = PausedTerminal()
-    recorder = subprocess.Popen([*program_command("record"), "--domain", str(domain_id), "-v", "--output",
-                                 str(recording), "--topics", "CameraImageData"], stdout=terminal.slave,
-                                stderr=subprocess.PIPE, text=True, env={**os.environ, **quiet_env()})
+    recorder = terminal.start([*program_command("record"), "--domain", str(domain_id), "-v", "--output",
+                               str(recording), "--topics", "CameraImageData"])
     try:
         camera = subprocess.run([*program_command("camera_pub"), "--domain", str(domain_id), "--count", "150",
                                  "-D", "config.pubInterval=20", "-D", "config.waitSubscribers=1"],
@@ -339,10 +345,8 @@ def test_a_recorder_behind_a_paused_terminal_never_holds_the_camera_back(domain_
         recorder.send_signal(signal.SIGINT)
         assert recorder.wait(timeout=60) == 0
     finally:
-        if recorder.poll() is None:
-            recorder.kill()
-        terminal.close()
-    assert recorder.stderr is not None and recorder.stderr.read() == ""
+        errors = terminal.end(recorder)
+    assert errors == "", errors
     with recording.open("rb") as file:
         summary = make_reader(file).get_summary()
     assert summary is not None and summary.statistics is not None
