@@ -17,7 +17,7 @@ import pytest
 from apprunner import DEFAULT_SIGINT, signal_state
 from test_launcher import pids_started
 
-from automotive import command
+from automotive import command, config
 from automotive.bus.version import DISTRIBUTION
 from automotive.tools.support.children import Child, handles_signal, wait_until_handled
 
@@ -225,3 +225,25 @@ def test_help_says_what_a_user_does(args: list[str], capsys: pytest.CaptureFixtu
     if args[0] in ("run", "record", "launch", "lidar-view", "shapes-demo", "monitor"):
         examples = text.split("examples:\n", 1)[1]
         assert examples.startswith(f"  automotive {' '.join(args)}"), text
+
+
+LATE_STOP = """
+import sys
+from automotive.bus.app import run
+from automotive.bus.properties import PropertyKeys
+built = []
+code = run("probe", "", lambda app: (built.append(app), app.ready()), sys.argv[1:], keys=PropertyKeys.of())
+built[0].stop()  # as the signal thread does when it serves a SIGTERM after the main thread, stopped by it, closed all
+sys.exit(code)
+"""
+
+
+def test_a_stop_that_comes_after_the_application_closed_does_nothing(domain_id: int, tmp_path: Path) -> None:
+    """A SIGTERM stops a program twice: its main thread notices it and closes the application, and the signal thread
+    asks the application to stop. On a busy machine the second came after the first had closed everything, and the
+    program said "signal 15: [DDS_RETCODE_BAD_PARAMETER] ... calling set on GuardCondition" on stderr."""
+    properties = tmp_path / "probe.properties"
+    properties.write_text(f"qos.File={config.qos_file()}\n")
+    result = subprocess.run([sys.executable, "-c", LATE_STOP, "--properties", str(properties), "--domain",
+                             str(domain_id)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0 and result.stderr == "", result.stderr

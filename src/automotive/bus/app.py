@@ -218,6 +218,10 @@ class Application:
         # Said once Cyclone took the configuration: one it refuses is one line, naming the user's element.
         log.log(logging.DEBUG if shipped_default else logging.INFO, "network: %s", self.network.describe())
         self.guard = GuardCondition(self.bus.participant)
+        # A stop served by the signal thread after the main thread, stopped by the same signal, closed the application
+        # sets nothing: the guard went with the participant (Cyclone: BAD_PARAMETER, seen on a busy machine).
+        self._guard_lock = threading.Lock()
+        self._closed = False
         self._ready = False
         self.iterations = 0
 
@@ -293,7 +297,9 @@ class Application:
 
     def _end_loops(self) -> None:
         self.stop_event.set()
-        self.guard.set(True)
+        with self._guard_lock:
+            if not self._closed:
+                self.guard.set(True)
 
     def ready(self) -> None:
         """Called once set-up is done: a property the application never read is a mistake worth stopping for."""
@@ -416,6 +422,8 @@ class Application:
                     yield None
 
     def close(self) -> None:
+        with self._guard_lock:
+            self._closed = True
         if self.diagnostics is not None:
             self.diagnostics.stop()  # its writer goes with the participant
         self.bus.close()
