@@ -57,6 +57,13 @@ def namespaces() -> str:
     return subprocess.run(["ip", "netns", "list"], capture_output=True, text=True).stdout
 
 
+def left_behind(prefix: str) -> list[str]:
+    """The network namespaces named ``<prefix><pid>`` whose process has ended: left behind. Those of a benchmark
+    still running (another test run's on this host) are not."""
+    names = re.findall(rf"^({re.escape(prefix)}(\d+))\b", namespaces(), re.MULTILINE)
+    return [name for name, pid in names if not Path(f"/proc/{pid}").exists()]
+
+
 @pytest.fixture
 def started() -> Iterator[list[Child]]:
     """Benchmarks started in the background; any still running at the end is stopped."""

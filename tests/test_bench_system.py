@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 from shm_helpers import files_of
-from test_bench_edges import NAMESPACES, bench, left_in, namespaces
+from test_bench_edges import NAMESPACES, bench, left_behind, left_in
 
 from automotive.bench import system
 from automotive.bench.ddsperf import OneWay
@@ -219,7 +219,7 @@ def test_a_short_run_shows_every_application_and_the_last_line_and_leaves_nothin
     check_transport_given(work, "auto", prefix)
     assert (work / "camera_sub.jsonl").is_file() and (work / "sensor_fusion.jsonl").is_file()
     assert left_in(tmpdir) == []
-    assert "bench-system-" not in namespaces()
+    assert left_behind("bench-system-") == []
     assert not files_of(prefix)  # a clean stop leaves only iceoryx2's global file of the prefix
 
 
@@ -244,7 +244,7 @@ def test_a_short_run_with_dds_readers_has_them_served_on_dds_and_prints_the_refe
     assert any(line.startswith("reference: ddsperf (C) one way at 4,196,372 bytes, 30 Hz") for line in out), out
     assert re.fullmatch(r"camera_vs_c_p99=\d+\.\d\d", out[-3]), out
     assert re.fullmatch(r"system_vs_c_cpu=\d+\.\d\d", out[-2]), out  # ddsperf's CPU, after its discovery
-    assert left_in(tmpdir) == [] and "bench-system-" not in namespaces()
+    assert left_in(tmpdir) == [] and left_behind("bench-system-") == []
 
 
 @pytest.mark.skipif(NAMESPACES is not None, reason=f"the system benchmark: {NAMESPACES}")
@@ -260,7 +260,7 @@ def test_a_short_run_over_udp_gives_one_json_line_and_no_shared_memory(
     assert not any(line.startswith(("camera: ", "goal ")) for line in out)  # the JSON line instead
     check_transport_given(work, "udp", prefix)
     assert not files_of(prefix, include_global=True)  # config.transport=udp: iceoryx2 never opened
-    assert left_in(tmpdir) == [] and "bench-system-" not in namespaces()
+    assert left_in(tmpdir) == [] and left_behind("bench-system-") == []
 
 
 def test_help_needs_nothing_and_a_prefix_is_checked_as_the_applications_check_it() -> None:
