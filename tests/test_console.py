@@ -311,7 +311,8 @@ def test_a_paused_terminal_never_stops_an_application(domain_id: int, bus: Datab
         errors = terminal.end(vision)
     assert errors == "", errors
     published = [int(match[1]) for line in terminal.lines if (match := re.search(r"published sample (\d+):", line))]
-    assert published == sorted(published) and len(published) > 2000, len(published)  # in order, the held ones first
+    # In order, the 2,000 lines held while paused first (from sample 1 on: the first come are kept), then the later.
+    assert published[:1] == [1] and published == sorted(published) and len(published) > 1900, published[:3]
 
 
 def test_a_program_ends_within_5_s_of_its_end_when_its_terminal_stays_paused(domain_id: int) -> None:
