@@ -199,6 +199,15 @@ class OutputQueue(Generic[Item]):
         self._writer.join(timeout=wait_s)
 
 
+def flush_stdout() -> None:
+    """What Python's buffer of stdout holds, written now: before a writer that bypasses it (DescriptorStream), so that
+    what was printed before comes first."""
+    try:
+        sys.stdout.flush()
+    except (OSError, ValueError):
+        pass  # nobody reads it (a closed pipe, a terminal gone): the first write says so
+
+
 class DescriptorStream:
     """Text written straight to a file descriptor, whole, without Python's buffer: a write that blocks holds none of
     Python's locks (an interpreter ending beside a blocked sys.stdout would fail "could not acquire lock")."""
@@ -270,7 +279,7 @@ def setup_logging(name: str, verbose: bool = False, on_closed: Callable[[], None
     skip_unused_record_fields()
     handler: logging.Handler
     if _on_terminal():
-        sys.stdout.flush()  # what was printed before comes first: the queue's writer bypasses Python's buffer
+        flush_stdout()
         stream = cast(TextIO, DescriptorStream(sys.stdout.fileno()))  # what StreamHandler uses of one: write, flush
         handler = _terminal = TerminalHandler(ClosedPipeHandler(stream, on_closed), name)
     else:

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from automotive.bus.console import DescriptorStream, OutputQueue, without_debug_record
+from automotive.bus.console import DescriptorStream, OutputQueue, flush_stdout, without_debug_record
 from automotive.tools.launch import plan
 from automotive.tools.launch.logfile import LogFile
 from automotive.tools.launch.plan import LaunchError
@@ -60,10 +60,7 @@ class Console:
         # output (an application whose output nobody reads blocks at its next line once its pipe is full, and the
         # alert chain with it). Beyond CONSOLE_QUEUE_LINES waiting, the applications' lines are left out (and
         # counted); the launcher's own, few, never are.
-        try:
-            sys.stdout.flush()  # what was printed before comes first: the writer bypasses Python's buffer
-        except (OSError, ValueError):
-            pass
+        flush_stdout()
         self._lines: OutputQueue[str] = OutputQueue(_write_out, self._left_out, CONSOLE_QUEUE_LINES, "console")
         # its own failures are said here only, not written into it
         self.launcher_log = LogFile(launcher_log, self._launcher_line) if launcher_log else None
