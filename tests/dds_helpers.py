@@ -34,12 +34,13 @@ def wait_until(condition: Callable[[], bool], timeout: float = 15.0, what: str =
         time.sleep(0.02)
 
 
-def write_until(process: Any, pattern: str, write: Callable[[], Any], timeout: float = 60.0) -> None:
-    """Write (every 20 ms) until the application ``process`` printed ``pattern``. A writer that matched a reader may
-    not be known to that reader yet (discovery is not symmetric): a best-effort sample written then is lost."""
+def write_until(process: Any, pattern: str, write: Callable[[], Any], timeout: float = 60.0, after: int = 0) -> None:
+    """Write (every 20 ms) until the application ``process`` printed ``pattern`` (more than ``after`` times: lines of
+    it from before). A writer that matched a reader may not be known to that reader yet (discovery is not
+    symmetric): a best-effort sample written then is lost."""
     def seen() -> bool:
         write()
-        return process.count(pattern) > 0
+        return process.count(pattern) > after
 
     wait_until(seen, timeout, f"/{pattern}/ in the output of {process.name}")
 

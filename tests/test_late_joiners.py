@@ -23,7 +23,7 @@ from pathlib import Path
 
 import pytest
 from apprunner import AppRunner, CommandProcess
-from dds_helpers import wait_until
+from dds_helpers import write_until
 from fastdds_peer import FastDdsPeer
 from test_launcher import launch, started_pids
 
@@ -64,10 +64,15 @@ class RunningSystem:
         assert self.launcher.process.poll() is None, self.launcher.output[-4000:]
 
     def app_lines(self, name: str, pattern: str) -> int:
-        return self.launcher.count(rf"^{name}\s+\|.*{pattern}")
+        return self.launcher.count(app_pattern(name, pattern))
 
     def wait_app_line(self, name: str, pattern: str, after: int, timeout: float) -> str:
-        return self.launcher.wait_for(rf"^{name}\s+\|.*{pattern}", timeout, count=after + 1)
+        return self.launcher.wait_for(app_pattern(name, pattern), timeout, count=after + 1)
+
+
+def app_pattern(name: str, pattern: str) -> str:
+    """``pattern`` in a line of application ``name`` on the launcher's console."""
+    return rf"^{name}\s+\|.*{pattern}"
 
 
 def start_system(domain_id: int, log_dir: Path, *args: str) -> Iterator[RunningSystem]:
@@ -116,11 +121,9 @@ def test_a_late_rti_participant_with_its_defaults_receives_every_flow(system: Ru
             assert peer.count_until(name, 1, timeout=30), f"the late RTI reader of {name} received nothing"
         # The LiDAR's Circle reader is best effort, as Shapes Demo's: the circle is lost until that reader has
         # matched the RTI writer itself (discovery is not symmetric), so it is written, as Shapes Demo does, until seen.
-        def seen() -> bool:
-            peer.write("Circle", {"color": "ORANGE", "x": 120, "y": 120, "shapesize": 40})
-            return system.app_lines("lidar", "shape ORANGE appeared") > shapes_before
-
-        wait_until(seen, 30, "the LiDAR to report the RTI participant's ORANGE circle")
+        write_until(system.launcher, app_pattern("lidar", "shape ORANGE appeared"),
+                    lambda: peer.write("Circle", {"color": "ORANGE", "x": 120, "y": 120, "shapesize": 40}),
+                    timeout=30, after=shapes_before)
 
 
 def test_a_late_fastdds_participant_with_its_defaults_receives_every_flow(system: RunningSystem) -> None:
